@@ -1,0 +1,31 @@
+# lmjx: two commands do everything on a fresh machine.
+#   make run    create .venv, install the pinned dependencies, build the case-2 map on the CPU
+#   make test   the same set-up, then the test suite
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test lint bench clean
+
+$(STAMP): pyproject.toml requirements.lock
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/lmjx reach --failure case2 --out maps/case2_reach.h5 --png maps/case2_reach.png
+
+test: $(STAMP)
+	$(BIN)/ruff check lmjx kernels tests benchmarks
+	$(BIN)/python -m pytest -q tests
+
+lint: $(STAMP)
+	$(BIN)/ruff check lmjx kernels tests benchmarks
+
+bench: $(STAMP)
+	$(BIN)/lmjx bench
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

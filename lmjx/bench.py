@@ -1,0 +1,282 @@
+"""`lmjx bench`: lmjx's kernels against the baselines, side by side, in one run.
+
+Figures (all on the same task-plane targets, PM mode: TCP at grasp height, tool down):
+  * lmjx batched IK (solve only, and solve + acceptance checks) per batch size: solves/s,
+    compile time apart, median of repeats;
+  * pytorch_kinematics PseudoInverseIK on the same device, same batch and iteration count;
+  * a serial PyBullet calculateInverseKinematics loop on PyBullet's own Panda (CPU);
+  * whole Reach-Ability maps (after compilation) for none, case1 and case2.
+Speed is measured here, never asserted in unit tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import platform
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from .baselines import BaselineMissingError, pk_chain, pybullet_ik_loop, pybullet_panda
+from .errors import ConfigError
+from .failure import parse_failure
+from .fileio import check_writable, write_text_atomic
+from .ik_batch import IKBatch, backend, device_description
+from .reach import ReachConfig, reach_map
+from .robot import Robot, load_robot
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def plane_targets(n: int, config: ReachConfig, seed: int = 0) -> np.ndarray:
+    """n PM targets (x, y, z, z): the task plane's cell centres, repeated as needed."""
+    xs, ys = config.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    cells = np.stack([gx.ravel(), gy.ravel()], axis=-1)
+    idx = np.random.default_rng(seed).permutation(np.resize(np.arange(len(cells)), n))
+    z = np.full((n, 1), config.grasp_height)
+    return np.concatenate([cells[idx], z, z], axis=-1)
+
+
+def bench_lmjx_ik(robot: Robot, sizes: list[int], iterations: int, repeats: int) -> list[dict]:
+    import jax
+    import jax.numpy as jnp
+
+    from .kernels.ik import IKSettings, ik_solve
+
+    failure = parse_failure("none", robot)
+    cfg = ReachConfig()
+    settings = IKSettings(iterations=iterations)
+    free = failure.free()
+    q_fixed = failure.q_fixed()
+    sites = (robot.tcp_site,)
+    rows = []
+    for b in sizes:
+        rng = np.random.default_rng(1)
+        tgt = plane_targets(b, cfg)
+        q0 = (robot.lower + rng.random((b, 7)) * (robot.upper - robot.lower)).astype(np.float32)
+        args = (jnp.asarray(tgt, jnp.float32), jnp.zeros(b, jnp.int32), jnp.ones(b, bool), jnp.asarray(q0))
+
+        solve = jax.jit(jax.vmap(lambda t, s, pm, q: ik_solve(robot.arm, settings, free, q_fixed, sites, t, s, pm, q)))
+        t0 = time.perf_counter()
+        solve_c = solve.lower(*args).compile()
+        compile_solve = time.perf_counter() - t0
+        solve_c(*args).block_until_ready()
+        t_solve = _median_time(lambda: solve_c(*args).block_until_ready(), repeats)  # noqa: B023
+
+        batch = IKBatch(robot, failure, sites, settings, chunk=b)
+        batch.solve(tgt, np.zeros(b, np.int32), np.ones(b, bool), q0)
+        res = {}
+
+        def full() -> None:
+            res.update(batch.solve(tgt, np.zeros(b, np.int32), np.ones(b, bool), q0))  # noqa: B023
+
+        t_full = _median_time(full, repeats)
+        rows.append(
+            {
+                "batch": b,
+                "iterations": iterations,
+                "compile_s": round(compile_solve, 3),
+                "compile_with_checks_s": round(batch.compile_seconds, 3),
+                "solve_s": t_solve,
+                "solve_per_s": b / t_solve,
+                "solve_check_s": t_full,
+                "solve_check_per_s": b / t_full,
+                "accepted": float(np.mean(res["ok"])),
+            }
+        )
+    return rows
+
+
+def bench_pk(robot: Robot, b: int, iterations: int, repeats: int) -> dict:
+    import pytorch_kinematics as pk
+    import torch
+
+    device = "cuda" if backend() == "gpu" and torch.cuda.is_available() else "cpu"
+    chain = pk_chain(robot, device=device, dtype="float32")
+    limits = torch.tensor(np.stack([robot.lower, robot.upper], axis=1), dtype=torch.float32, device=device)
+    tgt = plane_targets(b, ReachConfig())
+    rng = np.random.default_rng(1)
+    q0 = torch.tensor(
+        robot.lower + rng.random((1, 7)) * (robot.upper - robot.lower), dtype=torch.float32, device=device
+    )
+    rot = torch.tensor([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]], device=device).expand(b, 3, 3)
+    goal = pk.Transform3d(pos=torch.tensor(tgt[:, :3], dtype=torch.float32, device=device), rot=rot, device=device)
+    ik = pk.PseudoInverseIK(
+        chain,
+        retry_configs=q0,
+        joint_limits=limits,
+        max_iterations=iterations,
+        early_stopping_any_converged=False,
+        early_stopping_no_improvement=None,
+        enforce_joint_limits=False,  # its post-hoc limit refinement adds iterations
+        clamp_to_limits=False,  # with clamping, 0.10.0 does not converge on these targets
+        pos_tolerance=0.002,
+        rot_tolerance=0.05,
+    )
+
+    def run() -> None:
+        ik.clear()
+        ik.solve(goal)
+        if device == "cuda":
+            torch.cuda.synchronize()
+
+    t0 = time.perf_counter()
+    run()
+    first = time.perf_counter() - t0
+    t = _median_time(run, repeats)
+    sol = ik.solve(goal)
+    return {
+        "device": device,
+        "batch": b,
+        "iterations": iterations,
+        "first_call_s": round(first, 3),
+        "solve_s": t,
+        "solve_per_s": b / t,
+        "converged": float(sol.converged.float().mean()),
+    }
+
+
+def bench_pybullet(robot: Robot, n: int, iterations: tuple[int, ...]) -> dict:
+    """PyBullet's IK loop at several iteration caps; the fastest is kept for the ratio."""
+    panda = pybullet_panda()
+    tgt = plane_targets(n, ReachConfig())[:, :3]
+    rng = np.random.default_rng(1)
+    q0 = panda.lower + rng.random((n, len(panda.joints))) * (panda.upper - panda.lower)
+    runs = []
+    for it in iterations:
+        seconds, success = pybullet_ik_loop(panda, tgt, q0, it)
+        runs.append({"max_iterations": it, "seconds": seconds, "solve_per_s": n / seconds, "success": success})
+    fastest = max(runs, key=lambda r: r["solve_per_s"])
+    return {
+        "device": f"cpu ({platform.machine()}, {platform.node()}), one thread",
+        "solves": n,
+        "runs": runs,
+        "solve_per_s": fastest["solve_per_s"],
+    }
+
+
+def bench_maps(robot: Robot, failures: list[str], config: ReachConfig) -> list[dict]:
+    rows = []
+    for f in failures:
+        first = reach_map(f, config, robot=robot)
+        second = reach_map(f, config, robot=robot)
+        rows.append(
+            {
+                "failure": f,
+                "cell_m": config.cell,
+                "cells": int(second.labels.size),
+                "attempts": config.attempts,
+                "restarts": config.restarts,
+                "interaction_points": list(config.interaction_points),
+                "problems": second.problems,
+                "compile_s": round(first.compile_seconds, 3),
+                "seconds": second.seconds,
+                "area_m2": second.areas(True),
+            }
+        )
+    return rows
+
+
+def _fmt_rate(x: float) -> str:
+    return f"{x / 1e6:.2f} M/s" if x >= 1e5 else f"{x / 1e3:.1f} k/s"
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    robot = load_robot()
+    on_gpu = backend() == "gpu"
+    if args.out:
+        check_writable(args.out, "benchmark results")
+    if args.sizes:
+        try:
+            sizes = [int(s) for s in args.sizes.split(",")]
+        except ValueError:
+            raise ConfigError(f"--sizes must be whole numbers separated by commas, got '{args.sizes}'") from None
+        if any(s < 1 for s in sizes):
+            raise ConfigError("--sizes must be positive")
+    elif args.quick:
+        sizes = [2048]
+    else:
+        sizes = [1 << 16, 1 << 20, 1 << 21] if on_gpu else [4096, 16384]
+    iterations = ReachConfig().iterations
+    report: dict = {
+        "date": dt.date.today().isoformat(),
+        "device": device_description(),
+        "command": "lmjx " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else "lmjx bench",
+        "python": platform.python_version(),
+        "ik": bench_lmjx_ik(robot, sizes, iterations, args.repeats),
+    }
+    pk_batch = min(max(sizes), 1 << 16) if not args.quick else sizes[0]
+    try:
+        report["pytorch_kinematics"] = bench_pk(robot, pk_batch, iterations, args.repeats)
+    except (BaselineMissingError, ImportError) as e:
+        report["pytorch_kinematics"] = {"skipped": str(e)}
+    try:
+        report["pybullet"] = bench_pybullet(robot, 50 if args.quick else 500, (20, iterations, 200))
+    except (BaselineMissingError, ImportError) as e:
+        report["pybullet"] = {"skipped": str(e)}
+    map_cfg = ReachConfig(cell=0.05) if args.quick else ReachConfig()
+    report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", "case1", "case2"], map_cfg)
+
+    best = max(r["solve_check_per_s"] for r in report["ik"])
+    ratios = {}
+    if "solve_per_s" in report["pybullet"]:
+        ratios["lmjx_vs_pybullet"] = best / report["pybullet"]["solve_per_s"]
+    if "solve_per_s" in report["pytorch_kinematics"]:
+        same = [r for r in report["ik"] if r["batch"] == report["pytorch_kinematics"]["batch"]]
+        ref = same[0]["solve_check_per_s"] if same else best
+        ratios["lmjx_vs_pytorch_kinematics_same_batch"] = ref / report["pytorch_kinematics"]["solve_per_s"]
+    report["ratios"] = ratios
+
+    if args.out:
+        write_text_atomic(args.out, json.dumps(report, indent=2) + "\n")
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"lmjx bench on {report['device']}, {report['date']}, {iterations} IK iterations")
+    print("  lmjx IK (PM, TCP on the task plane):")
+    for r in report["ik"]:
+        print(
+            f"    batch {r['batch']:>9,}: solve {_fmt_rate(r['solve_per_s'])}, solve+checks "
+            f"{_fmt_rate(r['solve_check_per_s'])} "
+            f"(compile {r['compile_s']:.1f} s / {r['compile_with_checks_s']:.1f} s), "
+            f"accepted {r['accepted']:.2f}"
+        )
+    pkr = report["pytorch_kinematics"]
+    if "skipped" in pkr:
+        print(f"  pytorch_kinematics: skipped ({pkr['skipped']})")
+    else:
+        print(
+            f"  pytorch_kinematics PseudoInverseIK on {pkr['device']}, batch {pkr['batch']:,}: "
+            f"{_fmt_rate(pkr['solve_per_s'])} (converged {pkr['converged']:.2f})"
+        )
+    pb = report["pybullet"]
+    if "skipped" in pb:
+        print(f"  PyBullet: skipped ({pb['skipped']})")
+    else:
+        for run in pb["runs"]:
+            print(
+                f"  PyBullet calculateInverseKinematics loop on {pb['device']}, maxNumIterations "
+                f"{run['max_iterations']}: {_fmt_rate(run['solve_per_s'])} (success {run['success']:.2f})"
+            )
+    print("  whole Reach-Ability maps (after compilation):")
+    for m in report["maps"]:
+        print(
+            f"    {m['failure']:>6}: {m['cells']} cells x k={m['attempts']} x {m['restarts']} restarts, "
+            f"{m['seconds']:.3f} s (compile {m['compile_s']:.1f} s), PM {m['area_m2']['pm']:.3f} m^2, "
+            f"NPM+PM {m['area_m2']['npm_pm']:.3f} m^2"
+        )
+    for k, v in ratios.items():
+        print(f"  {k}: {v:,.1f}x")
+    return 0

@@ -1,0 +1,331 @@
+"""The `lmjx` command line.
+
+Parses arguments, validates them at the boundary, calls the library and prints results
+(human text, or JSON with --json on stdout; progress on stderr).  User mistakes end with a
+one-line error and exit status 2, an interrupt with status 130; neither leaves a partial
+output file.  Heavy imports (JAX, MuJoCo) happen only once a command runs, so --help is
+instant and --device can still choose the platform.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from collections.abc import Sequence
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+    return v
+
+
+def _add_device(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--device",
+        choices=("auto", "cpu", "gpu"),
+        default="auto",
+        help="where the kernels run: auto (a GPU if JAX sees one, else the CPU), cpu or gpu",
+    )
+
+
+def _add_reach_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cell", type=_positive_float, default=0.02, help="cell edge in metres (default 0.02)")
+    p.add_argument(
+        "--attempts",
+        type=_positive_int,
+        default=10,
+        help="k, attempts per cell; the first half are PM (default 10)",
+    )
+    p.add_argument("--restarts", type=_positive_int, default=8, help="random IK restarts per attempt (default 8)")
+    p.add_argument("--iterations", type=_positive_int, default=48, help="IK iterations per restart (default 48)")
+    p.add_argument(
+        "--ips",
+        default="hand,wrist,forearm",
+        help="interaction points cycled by NPM attempts, comma separated (default hand,wrist,forearm; "
+        "the model also has palm, flange, forearm_mid, forearm_proximal, elbow, upper_arm)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same map (default 0)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="lmjx",
+        description="Reach maps, kinodynamic edge bundles and planning for a Franka Panda with locked joints "
+        "(after Briscoe-Martinez et al., 'Exploring How Non-Prehensile Manipulation Expands Capability in "
+        "Robots Experiencing Multi-Joint Failure').",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
+
+    p = sub.add_parser(
+        "reach",
+        help="Reach-Ability map of a failure (paper Algorithm 1)",
+        description="Compute which cells of the task plane the arm can grasp at (PM), only push or poke (NPM), or "
+        "not reach, with a given failure.  Failures: none, case1 (J3, J5, J7 locked), case2 (J6, J7 locked) or "
+        "an explicit list such as 'J2=0.3,J4=-1.5' (radians).",
+    )
+    p.add_argument("--failure", required=True, help="none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
+    _add_reach_options(p)
+    p.add_argument("--out", help="write the map to this HDF5 file (schema in maps/README.md)")
+    p.add_argument("--png", help="write a heatmap (raw and smoothed) to this PNG file")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
+        "lock-search",
+        help="Reach-Ability areas over a grid of lock angles",
+        description="For the given locked joints, compute a full Reach-Ability map at every combination of lock "
+        "angles on a grid spread over the joints' ranges, and report the PM and NPM+PM areas.  The lock with the "
+        "smallest PM area (ties: largest NPM+PM) is reported as 'best'; this is how case2's angles were chosen.",
+    )
+    p.add_argument("--joints", required=True, help="locked joints to sweep, e.g. J6,J7")
+    p.add_argument("--grid", type=_positive_int, default=9, help="angles per joint (default 9)")
+    p.add_argument("--base", default="none", help="further joints held locked during the sweep, e.g. 'J3=0'")
+    _add_reach_options(p)
+    p.add_argument("--out", help="write every grid point's areas to this JSON file")
+    p.add_argument("--png", help="write PM and NPM+PM heatmaps over the grid (two joints only)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
+        "info",
+        help="what is in a map file",
+        description="Validate a map file and describe its contents.",
+    )
+    p.add_argument("path", help="an lmjx map file (.h5)")
+    p.add_argument("--json", action="store_true", help="print JSON on stdout")
+
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks against the baselines, side by side",
+        description="Time lmjx's batched IK against a serial PyBullet calculateInverseKinematics loop (PyBullet's "
+        "own Panda) and pytorch_kinematics' batched IK on the same device, on the same task-plane targets; and "
+        "time whole Reach-Ability maps.  Compile time is reported apart from run time.",
+    )
+    p.add_argument("--quick", action="store_true", help="small sizes that finish in about a minute on a CPU")
+    p.add_argument("--sizes", help="comma-separated IK batch sizes (default: by device and --quick)")
+    p.add_argument("--repeats", type=_positive_int, default=3, help="timed repetitions per figure; the median is kept")
+    p.add_argument("--out", help="write the results as JSON to this file")
+    p.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
+    _add_device(p)
+    return parser
+
+
+def _set_device(choice: str) -> None:
+    """Pin JAX to a platform before it initializes; fail in one line if none is there."""
+    from .errors import LmjxError
+
+    os.environ["JAX_PLATFORMS"] = "cpu" if choice == "cpu" else "cuda"
+    import jax
+
+    try:
+        jax.devices()
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise LmjxError(f"no {choice.upper()} is available to JAX ({first}); use --device auto or cpu") from None
+
+
+def _reach_config(args: argparse.Namespace):
+    from .reach import ReachConfig
+
+    ips = tuple(s.strip() for s in args.ips.split(",") if s.strip())
+    return ReachConfig(
+        cell=args.cell,
+        attempts=args.attempts,
+        restarts=args.restarts,
+        iterations=args.iterations,
+        interaction_points=ips,
+        seed=args.seed,
+    )
+
+
+def _emit(args: argparse.Namespace, summary: dict, lines: Sequence[str]) -> None:
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print("\n".join(lines))
+
+
+def cmd_reach(args: argparse.Namespace) -> int:
+    from .failure import parse_failure
+    from .fileio import check_writable
+    from .robot import load_robot
+
+    robot = load_robot()
+    failure = parse_failure(args.failure, robot)
+    config = _reach_config(args)
+    config.validate(robot)
+    if args.out:
+        check_writable(args.out, "map file")
+    if args.png:
+        check_writable(args.png, "heatmap")
+    from .reach import reach_map
+
+    result = reach_map(failure, config, robot=robot, progress=True)
+    if args.out:
+        from .mapfile import write_reach_map
+
+        write_reach_map(args.out, result, robot)
+    if args.png:
+        from .plots import reach_heatmap
+
+        reach_heatmap(result, args.png)
+    s = result.summary()
+    a, raw = s["area_m2"], s["area_raw_m2"]
+    lines = [
+        f"failure {failure.describe()}: {s['cells']} cells of {s['cell_m'] * 100:g} cm on {s['device']}",
+        f"  PM area      {a['pm']:.4f} m^2 (raw {raw['pm']:.4f})",
+        f"  NPM+PM area  {a['npm_pm']:.4f} m^2 (raw {raw['npm_pm']:.4f})",
+        f"  {s['problems']} IK problems in {s['seconds']:.2f} s (+ {s['compile_seconds']:.1f} s compile)",
+    ]
+    if args.out:
+        lines.append(f"  map written to {args.out}")
+    if args.png:
+        lines.append(f"  heatmap written to {args.png}")
+    _emit(args, s, lines)
+    return 0
+
+
+def cmd_lock_search(args: argparse.Namespace) -> int:
+    from .errors import ConfigError
+    from .failure import parse_failure
+    from .fileio import check_writable, write_text_atomic
+    from .locksearch import lock_grid, lock_search, parse_joints
+    from .robot import load_robot
+
+    robot = load_robot()
+    joints = parse_joints(args.joints, robot)
+    base = parse_failure(args.base, robot)
+    clash = set(joints) & set(base.locked_joints)
+    if clash:
+        raise ConfigError(f"J{min(clash)} is both swept (--joints) and held (--base)")
+    if len(joints) + len(base.locked) >= robot.nq:
+        raise ConfigError("the sweep would lock every joint")
+    config = _reach_config(args)
+    config.validate(robot)
+    if args.png and len(joints) != 2:
+        raise ConfigError("--png draws a 2-D grid: give exactly two --joints")
+    if args.out:
+        check_writable(args.out, "results file")
+    if args.png:
+        check_writable(args.png, "plot")
+    grids = tuple(lock_grid(robot, j, args.grid) for j in joints)
+    res = lock_search(joints, grids, config, robot=robot, base=base, progress=True)
+    angles, pm, npm = res.best()
+    summary = {
+        "joints": [f"J{j}" for j in joints],
+        "base": base.spec,
+        "grid": [[round(float(v), 4) for v in g] for g in grids],
+        "best": {
+            **{f"J{j}": round(a, 4) for j, a in zip(joints, angles, strict=True)},
+            "pm_m2": pm,
+            "npm_pm_m2": npm,
+        },
+        "points": res.rows(),
+        "seconds": round(res.seconds, 3),
+    }
+    if args.out:
+        write_text_atomic(args.out, json.dumps(summary, indent=2) + "\n")
+    if args.png:
+        from .plots import lock_search_plot
+
+        lock_search_plot(grids[0], grids[1], res.pm, res.npm_pm, (f"J{joints[0]}", f"J{joints[1]}"), angles, args.png)
+    width = max(len(k) for k in res.rows()[0])
+    lines = ["  ".join(k.rjust(width) for k in res.rows()[0])]
+    lines += ["  ".join(f"{v}".rjust(width) for v in row.values()) for row in res.rows()]
+    best = ", ".join(f"J{j}={a:.4f}" for j, a in zip(joints, angles, strict=True))
+    lines.append(f"best (smallest PM, then largest NPM+PM): {best}: PM {pm:.4f} m^2, NPM+PM {npm:.4f} m^2")
+    _emit(args, summary, lines)
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from .mapfile import load_map
+
+    m = load_map(args.path)
+    info: dict = {
+        "path": str(m.path),
+        "schema_version": int(m.attrs["schema_version"]),
+        "lmjx_version": str(m.attrs["lmjx_version"]),
+        "robot_model_hash": str(m.attrs["robot_model_hash"]),
+        "failure": m.failure.spec,
+        "locked": {f"J{j}": a for j, a in m.failure.locked},
+        "contents": str(m.attrs["contents"]),
+    }
+    lines = [
+        f"{m.path}: lmjx map, schema {info['schema_version']}, written by lmjx {info['lmjx_version']}",
+        f"  failure {m.failure.describe()}",
+    ]
+    if m.reach is not None:
+        r = m.reach
+        s = r.summary()
+        info["reach"] = {k: s[k] for k in ("cell_m", "area_m2", "area_raw_m2", "plane_m2", "cells", "seed", "device")}
+        info["reach"]["grid"] = [len(r.ys), len(r.xs)]
+        lines += [
+            f"  reach map: {len(r.xs)} x {len(r.ys)} cells of {r.config.cell * 100:g} cm, seed {r.config.seed}",
+            f"    PM {s['area_m2']['pm']:.4f} m^2, NPM+PM {s['area_m2']['npm_pm']:.4f} m^2 (smoothed)",
+        ]
+    _emit(args, info, lines)
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import run_bench
+
+    return run_bench(args)
+
+
+COMMANDS = {"reach": cmd_reach, "lock-search": cmd_lock_search, "info": cmd_info, "bench": cmd_bench}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .errors import LmjxError
+
+    try:
+        if getattr(args, "device", "auto") != "auto":
+            _set_device(args.device)
+        return COMMANDS[args.command](args)
+    except LmjxError as e:
+        print(f"lmjx {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"lmjx {args.command}: interrupted; no output was written", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        # Leave at once: XLA's worker threads may still be running the interrupted kernel,
+        # and tearing the interpreter down under them can crash.  Output files are written
+        # atomically, so there is nothing left to clean up.
+        os._exit(EXIT_INTERRUPTED)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
