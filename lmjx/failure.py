@@ -15,14 +15,18 @@ import numpy as np
 from .errors import FailureSpecError
 from .robot import Robot
 
-# The paper gives no lock angles; these are lmjx's choices (README.md, "Failure cases").
-# case1: J3, J5, J7 locked at Franka's ready-pose values, i.e. the arm failed at rest.
-# case2: J6, J7 locked where the gripper cannot grasp anywhere on the table; chosen by
-#        `lmjx lock-search --joints J6,J7` as the lock with the smallest PM area
-#        (the search and its result are in README.md).
+# The paper gives no lock angles; these are lmjx's choices, from full Reach-Ability maps
+# over grids of lock angles (README.md, "Failure cases", has the searches and the reasons):
+# case1: J7 at its ready-pose angle; (J3, J5) from a 7 x 7 grid
+#        (`lmjx lock-search --joints J3,J5 --base J7=0.785398 --grid 7`): the lock whose PM and
+#        NPM+PM areas, relative to no failure, are closest to the paper's case 1 (0.62/0.85
+#        and 0.85/0.92): grasping limited to part of the table, pushing almost everywhere.
+# case2: (J6, J7) from a 9 x 9 grid (`lmjx lock-search --joints J6,J7 --grid 9`): the lock
+#        with the smallest PM area (0: the gripper cannot grasp anywhere), ties broken by the
+#        largest NPM+PM area; a finer search around it keeps PM at 0 within +-0.1 rad.
 PRESETS: dict[str, dict[int, float]] = {
     "none": {},
-    "case1": {3: 0.0, 5: 0.0, 7: math.pi / 4},
+    "case1": {3: 2.8773, 5: 0.0, 7: math.pi / 4},
     "case2": {6: 0.935, 7: -0.7193},
 }
 
