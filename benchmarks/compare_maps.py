@@ -1,6 +1,6 @@
 """Compare Reach-Ability maps built on two devices (e.g. CPU and GPU) cell by cell.
 
-    python benchmarks/compare_maps.py DIR_A DIR_B     (files none.h5, case1.h5, case2.h5)
+python benchmarks/compare_maps.py DIR_A DIR_B     (files none.h5, case1.h5, case2.h5)
 """
 
 from __future__ import annotations

@@ -45,7 +45,9 @@ def main() -> None:
                 s = IKSettings(iterations=args.iterations, materialize=mat)
                 fn = jax.jit(
                     jax.vmap(
-                        lambda t, si, p, q, s=s: ik_solve(robot.arm, s, free, q_fixed, (robot.tcp_site,), t, si, p, q)
+                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: ik_solve(
+                            robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q
+                        )
                     )
                 )
                 t0 = time.perf_counter()
