@@ -1,42 +1,48 @@
 #!/usr/bin/env bash
 # One device-machine session: install the carried wheels, check the kernels on the GPU
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
-#     bash benchmarks/gpu_session.sh [tests] [bench] [maps] [locks]
-# (no argument: all four).  Results go to $OUT (or ./out/gpu).  The wheels come from
-# ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl).
+#     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
+# (no argument: all).  Everything printed also goes to $OUT/session.log; bench.json and the
+# lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
+# from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl); 'maps'
+# compares with CPU maps carried in out/cpu_maps.
 set -uo pipefail
 OUT=${OUT:-$PWD/out/gpu}
-mkdir -p "$OUT"
+WORK=/tmp/lmjx_gpu
+mkdir -p "$OUT" "$WORK"
+exec > >(tee -a "$OUT/session.log") 2>&1
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
   || { echo "wheel install failed"; exit 1; }
-export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 MUJOCO_GL=egl
+export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
 # Reuse compiled kernels across the processes of one session.
 export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
-steps=${*:-tests variants bench maps locks}
-nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.sm,clocks.max.sm --format=csv | tee "$OUT/gpu.txt"
-python3 -c "import sys, jax, mujoco; print(sys.version.split()[0], 'jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__)" \
-  | tee -a "$OUT/gpu.txt"
+steps=${*:-smoke tests variants bench maps locks}
+date -u
+nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
+python3 -c "import sys, jax, mujoco; print(sys.version.split()[0], 'jax', jax.__version__, jax.devices(), 'mujoco', mujoco.__version__)"
 
 for step in $steps; do
+  echo "=== $step"
   case $step in
+    smoke)
+      JAX_PLATFORMS=cuda timeout 300 python3 -m lmjx.cli reach --failure none --cell 0.1 --json ;;
     tests)
       # The kernels on the GPU against C MuJoCo / pytorch_kinematics (float32 on the device).
       JAX_PLATFORMS=cuda timeout 400 python3 -m pytest -q -x -p no:cacheprovider \
-        tests/test_kinematics.py tests/test_ik.py 2>&1 | tail -15 | tee "$OUT/tests.txt" ;;
+        tests/test_kinematics.py tests/test_ik.py 2>&1 | tail -15 ;;
+    variants)
+      timeout 400 python3 benchmarks/ik_variants.py --sizes 1048576 --failures none ;;
     bench)
-      timeout 500 python3 -m lmjx.cli bench --out "$OUT/bench.json" 2>&1 | tee "$OUT/bench.txt" ;;
+      timeout 500 python3 -m lmjx.cli bench --out "$OUT/bench.json" ;;
     maps)
       for f in none case1 case2; do
-        timeout 300 python3 -m lmjx.cli reach --failure $f --out "$OUT/$f.h5" --png "$OUT/$f.png" --json \
-          > "$OUT/reach_$f.json" 2> "$OUT/reach_$f.err"; tail -3 "$OUT/reach_$f.err"; cat "$OUT/reach_$f.json"
+        timeout 300 python3 -m lmjx.cli reach --failure $f --out "$WORK/$f.h5" --json 2> "$WORK/reach_$f.err"
+        tail -2 "$WORK/reach_$f.err"
       done
-      python3 benchmarks/compare_maps.py out/cpu_maps "$OUT" 2>&1 | tee "$OUT/compare.txt" ;;
-    smoke)
-      JAX_PLATFORMS=cuda timeout 300 python3 -m lmjx.cli reach --failure none --cell 0.1 --json 2>&1 | tail -20 ;;
-    variants)
-      timeout 400 python3 benchmarks/ik_variants.py --sizes 1048576 --failures none 2>&1 | tee "$OUT/variants.txt" ;;
+      python3 benchmarks/compare_maps.py out/cpu_maps "$WORK" ;;
     locks)
-      timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 15 --out "$OUT/lock_j6j7.json" \
-        --png "$OUT/lock_j6j7.png" 2>&1 | tail -3 | tee "$OUT/locks.txt" ;;
+      timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
+        --png "$OUT/lock_j6j7.png" | tail -3 ;;
   esac
 done
+date -u

@@ -18,7 +18,7 @@ import numpy as np
 
 from lmjx.bench import plane_targets
 from lmjx.failure import parse_failure
-from lmjx.kernels.ik import IKSettings, ik_solve
+from lmjx.kernels.ik import IKSettings, ik_check, ik_solve
 from lmjx.reach import ReachConfig
 from lmjx.robot import load_robot
 
@@ -63,6 +63,30 @@ def main() -> None:
                 print(
                     f"{spec:6s} batch {b:>9,} materialize {mat}: {b / med / 1e6:8.2f} M solves/s "
                     f"({med * 1e3:.2f} ms, {args.iterations} it, compile {comp:.1f} s)",
+                    flush=True,
+                )
+            for unroll in (False, True):
+                s = IKSettings(iterations=args.iterations, unroll_checks=unroll)
+                fn = jax.jit(
+                    jax.vmap(
+                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: ik_check(
+                            robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q
+                        ).ok
+                    )
+                )
+                t0 = time.perf_counter()
+                c = fn.lower(tgt, site, pm, q0).compile()
+                comp = time.perf_counter() - t0
+                c(tgt, site, pm, q0).block_until_ready()
+                ts = []
+                for _ in range(5):
+                    t0 = time.perf_counter()
+                    c(tgt, site, pm, q0).block_until_ready()
+                    ts.append(time.perf_counter() - t0)
+                med = statistics.median(ts)
+                print(
+                    f"{spec:6s} batch {b:>9,} checks only, unroll {unroll}: {b / med / 1e6:8.2f} M checks/s "
+                    f"({med * 1e3:.2f} ms, compile {comp:.1f} s)",
                     flush=True,
                 )
 

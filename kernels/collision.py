@@ -96,13 +96,14 @@ def capsule_box_clearance(
     rot: Mat,
     half: Sequence[float],
     iters: int = 24,
+    unroll: bool = True,
 ) -> jnp.ndarray:
     """Signed distance between capsules [a_w, b_w] of `radius` and a box (centre, R_world_box).
 
     The box's signed distance is convex, so along a segment it is a convex function of the
-    segment parameter: a golden-section search finds its minimum (24 steps shrink the
-    bracket to 1e-5 of the segment; the distance error is far smaller, the function being
-    flat at its minimum).
+    segment parameter: a golden-section search (one new evaluation per step) finds its
+    minimum; 24 steps shrink the bracket to 1e-5 of the segment, and the distance error is
+    smaller still, the function being flat (or, at a box edge, of slope <= 1) there.
     """
     a_l = mtvec(rot, vsub(a_w, center))
     b_l = mtvec(rot, vsub(b_w, center))
@@ -112,22 +113,37 @@ def capsule_box_clearance(
         return box_sdf((a_l[0] + d[0] * t, a_l[1] + d[1] * t, a_l[2] + d[2] * t), half)
 
     g = 0.6180339887498949
-    lo = jnp.zeros_like(a_l[0] + d[0])
-    hi = jnp.ones_like(lo)
+    zero = jnp.zeros_like(a_l[0] + d[0])
+    lo, hi = zero, zero + 1.0
+    m1, m2 = hi - g, lo + g
+    f1, f2 = f(m1), f(m2)
 
-    def body(_: int, bracket: tuple[jnp.ndarray, jnp.ndarray]) -> tuple[jnp.ndarray, jnp.ndarray]:
-        lo, hi = bracket
-        m1 = hi - g * (hi - lo)
-        m2 = lo + g * (hi - lo)
-        left = f(m1) <= f(m2)
-        return jnp.where(left, lo, m1), jnp.where(left, m2, hi)
+    def body(_: int, state: tuple[jnp.ndarray, ...]) -> tuple[jnp.ndarray, ...]:
+        lo, hi, m1, m2, f1, f2 = state
+        left = f1 <= f2  # the minimum lies in [lo, m2]; else in [m1, hi]
+        lo, hi = jnp.where(left, lo, m1), jnp.where(left, m2, hi)
+        t = jnp.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
+        ft = f(t)
+        m1, m2, f1, f2 = (
+            jnp.where(left, t, m2),
+            jnp.where(left, m1, t),
+            jnp.where(left, ft, f2),
+            jnp.where(left, f1, ft),
+        )
+        return lo, hi, m1, m2, f1, f2
 
-    lo, hi = jax.lax.fori_loop(0, iters, body, (lo, hi))
-    best = jnp.minimum(jnp.minimum(f(0.5 * (lo + hi)), f(jnp.zeros_like(lo))), f(jnp.ones_like(lo)))
+    state = (lo, hi, m1, m2, f1, f2)
+    if unroll:  # the search fuses into the surrounding kernel
+        for i in range(iters):
+            state = body(i, state)
+    else:
+        state = jax.lax.fori_loop(0, iters, body, state)
+    lo, hi, m1, m2, f1, f2 = state
+    best = jnp.minimum(jnp.minimum(f1, f2), jnp.minimum(f(zero), f(zero + 1.0)))
     return best - radius
 
 
-def table_clearance(arm: ArmModel, a_w: Vec, b_w: Vec) -> jnp.ndarray:
+def table_clearance(arm: ArmModel, a_w: Vec, b_w: Vec, unroll: bool = True) -> jnp.ndarray:
     """(nt,) exact signed distance of each table-checked capsule to the table box.
 
     a_w, b_w hold the endpoints of the capsules `arm.table_caps`, in that order.
@@ -139,4 +155,5 @@ def table_clearance(arm: ArmModel, a_w: Vec, b_w: Vec) -> jnp.ndarray:
         cvec(arm.table_center),
         cmat(arm.table_rot),
         [float(h) for h in arm.table_half],
+        unroll=unroll,
     )

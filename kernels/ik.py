@@ -53,6 +53,7 @@ class IKSettings(NamedTuple):
     accept_cube: float = 0.0  # accept (PM): no capsule penetrates the grasped cube
     cube_half: float = 0.025  # half edge of the grasped cube [m]
     materialize: int = 1  # XLA hint: 0 none, 1 body poses, 2 + joint frames, 3 + normal equations
+    unroll_checks: bool = False  # unroll the distance searches of the checks (fuses; larger code)
 
 
 def _joint_list(free: tuple[int, ...], q_fixed, q_free) -> list[Scalar]:
@@ -300,7 +301,10 @@ def ik_check(
     all_caps = list(range(len(arm.cap_r)))
     a_w, b_w = capsule_endpoints(arm, poses, all_caps, like)
     tab = np.asarray(arm.table_caps)
-    table = jnp.min(table_clearance(arm, tuple(x[tab] for x in a_w), tuple(x[tab] for x in b_w)), initial=jnp.inf)
+    table = jnp.min(
+        table_clearance(arm, tuple(x[tab] for x in a_w), tuple(x[tab] for x in b_w), settings.unroll_checks),
+        initial=jnp.inf,
+    )
     selfc = jnp.min(self_clearance(arm, a_w, b_w)) if len(arm.self_pairs) else jnp.asarray(jnp.inf, dtype)
     cube_all = capsule_box_clearance(
         a_w,
@@ -309,6 +313,7 @@ def ik_check(
         (target[0], target[1], target[2]),
         grasp_cube_frame(poses, arm.tool_body),
         [settings.cube_half] * 3,
+        unroll=settings.unroll_checks,
     )
     cube = jnp.where(pm, jnp.min(cube_all), jnp.inf)
     q = jnp.stack([_as(x, like) for x in qv])

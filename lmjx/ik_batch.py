@@ -91,10 +91,14 @@ class IKBatch:
         if self.traced_locks:
             fn = jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0, 0)))
             compiled = fn.lower(jnp.zeros(nq, jnp.float32), *dummy).compile()
+            jax.block_until_ready(compiled(jnp.zeros(nq, jnp.float32), *dummy))
         else:
             q_fixed = self.failure.q_fixed(nq)
             fn = jax.jit(jax.vmap(lambda *a: one(q_fixed, *a)))
             compiled = fn.lower(*dummy).compile()
+            jax.block_until_ready(compiled(*dummy))
+        # (one warm-up call is counted with the compilation: it loads the program onto the
+        # device, so that the timed calls measure steady-state work)
         self.compile_seconds = time.perf_counter() - t0
         _COMPILED[key] = compiled
         return compiled
