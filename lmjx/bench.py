@@ -25,7 +25,7 @@ from .baselines import BaselineMissingError, pk_chain, pybullet_ik_loop, pybulle
 from .errors import ConfigError
 from .failure import parse_failure
 from .fileio import check_writable, write_text_atomic
-from .ik_batch import IKBatch, backend, device_description
+from .ik_batch import IKBatch, backend, default_ik_settings, device_description
 from .reach import ReachConfig, reach_map
 from .robot import Robot, load_robot
 
@@ -53,11 +53,11 @@ def bench_lmjx_ik(robot: Robot, sizes: list[int], iterations: int, repeats: int)
     import jax
     import jax.numpy as jnp
 
-    from .kernels.ik import IKSettings, ik_solve
+    from .kernels.ik import ik_solve
 
     failure = parse_failure("none", robot)
     cfg = ReachConfig()
-    settings = IKSettings(iterations=iterations)
+    settings = default_ik_settings(iterations=iterations)
     free = failure.free()
     q_fixed = failure.q_fixed()
     sites = (robot.tcp_site,)
@@ -217,7 +217,7 @@ def run_bench(args: argparse.Namespace) -> int:
         "python": platform.python_version(),
         "ik": bench_lmjx_ik(robot, sizes, iterations, args.repeats),
     }
-    pk_batch = min(max(sizes), 1 << 16) if not args.quick else sizes[0]
+    pk_batch = min(max(sizes), 1 << 20) if not args.quick else sizes[0]
     try:
         report["pytorch_kinematics"] = bench_pk(robot, pk_batch, iterations, args.repeats)
     except (BaselineMissingError, ImportError) as e:
