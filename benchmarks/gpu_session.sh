@@ -24,6 +24,8 @@ python3 -c "import sys, jax, mujoco; print(sys.version.split()[0], 'jax', jax.__
 for step in $steps; do
   echo "=== $step"
   case $step in
+    timing)
+      timeout 300 python3 benchmarks/map_timing.py none case2 ;;
     smoke)
       JAX_PLATFORMS=cuda timeout 300 python3 -m lmjx.cli reach --failure none --cell 0.1 --json ;;
     tests)

@@ -69,9 +69,9 @@ def main() -> None:
                 s = IKSettings(iterations=args.iterations, unroll_checks=unroll)
                 fn = jax.jit(
                     jax.vmap(
-                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: ik_check(
-                            robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q
-                        ).ok
+                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: (
+                            ik_check(robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q).ok
+                        )
                     )
                 )
                 t0 = time.perf_counter()

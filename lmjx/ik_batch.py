@@ -66,6 +66,7 @@ class IKBatch:
     chunk: int
     traced_locks: bool = False
     compile_seconds: float = 0.0
+    kernel_seconds: float = 0.0  # time in kernel calls and transfers, compilation excluded
     _fn: Callable | None = field(default=None, repr=False)
 
     @property
@@ -137,6 +138,7 @@ class IKBatch:
         """
         if self._fn is None:
             self._fn = self._build()
+        t0 = time.perf_counter()
         n = len(targets)
         c = self.chunk
         outs: list[dict[str, np.ndarray]] = []
@@ -161,6 +163,7 @@ class IKBatch:
             outs.append({k: np.asarray(v)[: stop - start] for k, v in res._asdict().items()})
             if progress is not None:
                 progress(stop - start)
+        self.kernel_seconds += time.perf_counter() - t0
         if not outs:
             nq = self.robot.nq
             return {

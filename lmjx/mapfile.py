@@ -73,6 +73,7 @@ def _write_reach(f: h5py.File, result: ReachResult) -> None:
     g.attrs["area_raw_npm_pm_m2"] = raw["npm_pm"]
     g.attrs["seconds"] = result.seconds
     g.attrs["compile_seconds"] = result.compile_seconds
+    g.attrs["kernel_seconds"] = result.kernel_seconds
     g.attrs["device"] = result.device
     g.attrs["problems"] = result.problems
     _dataset(g, "x", result.xs, "cell centres along x [m]", compress=False)
@@ -208,6 +209,7 @@ def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> Re
         pos_err=g["pos_err"][...],
         seconds=float(a["seconds"]),
         compile_seconds=float(a["compile_seconds"]),
+        kernel_seconds=float(a.get("kernel_seconds", float("nan"))),
         device=_attr_str(a["device"]),
         problems=int(a["problems"]),
         robot_hash=_attr_str(root["robot_model_hash"]),

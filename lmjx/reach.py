@@ -114,8 +114,9 @@ class ReachResult:
     site: np.ndarray  # (ny, nx) int16 model site index of the solution, -1 if none
     target: np.ndarray  # (ny, nx, 4) float32 solved target x, y, z_lo, z_hi, NaN if none
     pos_err: np.ndarray  # (ny, nx) float32
-    seconds: float
+    seconds: float  # wall time of the map, compilation excluded
     compile_seconds: float
+    kernel_seconds: float  # of which: in the IK kernels (device work and transfers)
     device: str
     problems: int  # IK problems solved (restarts counted)
     robot_hash: str
@@ -143,6 +144,7 @@ class ReachResult:
             "problems": int(self.problems),
             "seconds": round(self.seconds, 4),
             "compile_seconds": round(self.compile_seconds, 4),
+            "kernel_seconds": round(self.kernel_seconds, 4),
             "device": self.device,
             "seed": self.config.seed,
         }
@@ -310,6 +312,7 @@ def reach_map(
         pos_err=best_err.reshape(ny, nx),
         seconds=time.perf_counter() - t_start - batch.compile_seconds,
         compile_seconds=batch.compile_seconds,
+        kernel_seconds=batch.kernel_seconds,
         device=device,
         problems=solved,
         robot_hash=robot.model_hash,
