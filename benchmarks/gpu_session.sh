@@ -42,6 +42,9 @@ for step in $steps; do
         tail -2 "$WORK/reach_$f.err"
       done
       python3 benchmarks/compare_maps.py out/cpu_maps "$WORK" ;;
+    locks1)
+      timeout 300 python3 -m lmjx.cli lock-search --joints J3,J5 --base J7=0.785398 --grid 7 --out "$OUT/lock_j3j5.json" \
+        --png "$OUT/lock_j3j5.png" | tail -3 ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;

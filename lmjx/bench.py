@@ -213,7 +213,7 @@ def run_bench(args: argparse.Namespace) -> int:
     report: dict = {
         "date": dt.date.today().isoformat(),
         "device": device_description(),
-        "command": "lmjx " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else "lmjx bench",
+        "command": "lmjx bench " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else "lmjx bench",
         "python": platform.python_version(),
         "ik": bench_lmjx_ik(robot, sizes, iterations, args.repeats),
     }

@@ -89,17 +89,22 @@ class IKBatch:
             return ik_check(arm, settings, free, q_fixed, sites, target, site, pm, q)
 
         c, nq = self.chunk, self.robot.nq
-        dummy = (
-            jnp.zeros((c, 4), jnp.float32),
-            jnp.zeros((c,), jnp.int32),
-            jnp.zeros((c,), bool),
-            jnp.zeros((c, len(free)), jnp.float32),
-        )
         t0 = time.perf_counter()
+        # numpy inputs: a jnp.zeros of a new shape would itself compile a small program.
+        dummy = tuple(
+            jnp.asarray(a)
+            for a in (
+                np.zeros((c, 4), np.float32),
+                np.zeros((c,), np.int32),
+                np.zeros((c,), np.bool_),
+                np.zeros((c, len(free)), np.float32),
+            )
+        )
         if self.traced_locks:
             fn = jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0, 0)))
-            compiled = fn.lower(jnp.zeros(nq, jnp.float32), *dummy).compile()
-            jax.block_until_ready(compiled(jnp.zeros(nq, jnp.float32), *dummy))
+            locks = jnp.asarray(np.zeros(nq, np.float32))
+            compiled = fn.lower(locks, *dummy).compile()
+            jax.block_until_ready(compiled(locks, *dummy))
         else:
             q_fixed = self.failure.q_fixed(nq)
             fn = jax.jit(jax.vmap(lambda *a: one(q_fixed, *a)))
@@ -114,7 +119,7 @@ class IKBatch:
     def _call(self, *args: jnp.ndarray):
         assert self._fn is not None
         if self.traced_locks:
-            return self._fn(jnp.asarray(self.failure.q_fixed(self.robot.nq), jnp.float32), *args)
+            return self._fn(jnp.asarray(self.failure.q_fixed(self.robot.nq).astype(np.float32)), *args)
         return self._fn(*args)
 
     def solve(

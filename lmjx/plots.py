@@ -86,7 +86,8 @@ def lock_search_plot(
         ax.set_ylabel(f"{names[0]} lock angle [rad]")
         for i in range(data.shape[0]):
             for j in range(data.shape[1]):
-                ax.text(j, i, f"{data[i, j]:.2f}", ha="center", va="center", fontsize=6, color="white")
+                bright = data[i, j] > 0.6 * float(np.nanmax(npm_pm))
+                ax.text(j, i, f"{data[i, j]:.2f}", ha="center", va="center", fontsize=6, color="black" if bright else "white")
         if chosen is not None:
             i = int(np.argmin(np.abs(grid_a - chosen[0])))
             j = int(np.argmin(np.abs(grid_b - chosen[1])))
