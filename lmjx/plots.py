@@ -87,7 +87,8 @@ def lock_search_plot(
         for i in range(data.shape[0]):
             for j in range(data.shape[1]):
                 bright = data[i, j] > 0.6 * float(np.nanmax(npm_pm))
-                ax.text(j, i, f"{data[i, j]:.2f}", ha="center", va="center", fontsize=6, color="black" if bright else "white")
+                color = "black" if bright else "white"
+                ax.text(j, i, f"{data[i, j]:.2f}", ha="center", va="center", fontsize=6, color=color)
         if chosen is not None:
             i = int(np.argmin(np.abs(grid_a - chosen[0])))
             j = int(np.argmin(np.abs(grid_b - chosen[1])))
