@@ -1,9 +1,40 @@
 """lmjx: keep a robot arm with locked joints useful, with whole-body non-prehensile actions.
 
 Public API (everything else is internal):
-  load_robot()            the Panda model and its static kernel description
-  parse_failure(spec)     'none', 'case1', 'case2' or 'J2=0.3,J4=-1.5'
-  reach_map(failure, cfg) the Reach-Ability map (paper Algorithm 1)
+  load_robot()                      the Panda model and its static kernel description
+  parse_failure(spec, robot)        'none', 'case1', 'case2' or 'J2=0.3,J4=-1.5'
+  ReachConfig, reach_map(failure)   the Reach-Ability map (paper Algorithm 1)
+  write_reach_map(path, result)     write a map file (schema: maps/README.md)
+  load_map(path)                    read and validate a map file
+  LmjxError                         base class of errors caused by user input
+
+Names are imported on first use, so that `import lmjx` (and `lmjx --help`) stays light.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "Failure": "failure",
+    "parse_failure": "failure",
+    "LmjxError": "errors",
+    "ReachConfig": "reach",
+    "ReachResult": "reach",
+    "reach_map": "reach",
+    "load_map": "mapfile",
+    "write_reach_map": "mapfile",
+    "Robot": "robot",
+    "load_robot": "robot",
+}
+
+__all__ = ["__version__", *sorted(_EXPORTS)]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module 'lmjx' has no attribute '{name}'")

@@ -108,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--joints", required=True, help="locked joints to sweep, e.g. J6,J7")
     p.add_argument("--grid", type=_positive_int, default=9, help="angles per joint (default 9)")
     p.add_argument("--base", default="none", help="further joints held locked during the sweep, e.g. 'J3=0'")
+    p.add_argument(
+        "--match",
+        metavar="PM_RATIO,NPM_RATIO",
+        help="also pick the lock whose PM and NPM+PM areas relative to no failure are closest to these ratios "
+        "(the paper's case 1: 0.7294,0.9239, i.e. 0.62/0.85 and 0.85/0.92); computes the no-failure map too",
+    )
     _add_reach_options(p)
     p.add_argument("--out", help="write every grid point's areas to this JSON file")
     p.add_argument("--png", help="write PM and NPM+PM heatmaps over the grid (two joints only)")
@@ -236,6 +242,14 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
         check_writable(args.out, "results file")
     if args.png:
         check_writable(args.png, "plot")
+    match = None
+    if args.match:
+        try:
+            match = tuple(float(v) for v in args.match.split(","))
+        except ValueError:
+            match = ()
+        if len(match) != 2 or not all(0 <= v <= 2 for v in match):
+            raise ConfigError(f"--match takes two ratios such as 0.7294,0.9239, got '{args.match}'")
     grids = tuple(lock_grid(robot, j, args.grid) for j in joints)
     res = lock_search(joints, grids, config, robot=robot, base=base, progress=True)
     angles, pm, npm = res.best()
@@ -251,17 +265,41 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
         "points": res.rows(),
         "seconds": round(res.seconds, 3),
     }
+    extra = []
+    if match is not None:
+        from .reach import reach_map
+
+        ref = reach_map(parse_failure("none", robot), config, robot=robot).areas()
+        m_angles, m_pm, m_npm = res.closest(match[0], match[1], ref)
+        summary["match"] = {
+            "ratios": list(match),
+            "reference_m2": ref,
+            **{f"J{j}": round(a, 4) for j, a in zip(joints, m_angles, strict=True)},
+            "pm_m2": m_pm,
+            "npm_pm_m2": m_npm,
+        }
+        m_text = ", ".join(f"J{j}={a:.4f}" for j, a in zip(joints, m_angles, strict=True))
+        extra.append(
+            f"closest to ratios {match[0]:g}, {match[1]:g} of no failure (PM {ref['pm']:.4f}, NPM+PM "
+            f"{ref['npm_pm']:.4f} m^2): {m_text}: PM {m_pm:.4f} m^2, NPM+PM {m_npm:.4f} m^2"
+        )
+        angles_for_plot = m_angles
+    else:
+        angles_for_plot = angles
     if args.out:
         write_text_atomic(args.out, json.dumps(summary, indent=2) + "\n")
     if args.png:
         from .plots import lock_search_plot
 
-        lock_search_plot(grids[0], grids[1], res.pm, res.npm_pm, (f"J{joints[0]}", f"J{joints[1]}"), angles, args.png)
+        lock_search_plot(
+            grids[0], grids[1], res.pm, res.npm_pm, (f"J{joints[0]}", f"J{joints[1]}"), angles_for_plot, args.png
+        )
     width = max(len(k) for k in res.rows()[0])
     lines = ["  ".join(k.rjust(width) for k in res.rows()[0])]
     lines += ["  ".join(f"{v}".rjust(width) for v in row.values()) for row in res.rows()]
     best = ", ".join(f"J{j}={a:.4f}" for j, a in zip(joints, angles, strict=True))
     lines.append(f"best (smallest PM, then largest NPM+PM): {best}: PM {pm:.4f} m^2, NPM+PM {npm:.4f} m^2")
+    lines += extra
     _emit(args, summary, lines)
     return 0
 

@@ -36,6 +36,23 @@ class LockSearchResult:
         angles = tuple(float(self.grids[k][i]) for k, i in enumerate(idx))
         return angles, float(pm), float(-neg_npm)
 
+    def closest(
+        self, pm_ratio: float, npm_ratio: float, reference: dict[str, float]
+    ) -> tuple[tuple[float, ...], float, float]:
+        """The lock whose areas, relative to `reference` (the no-failure areas), are closest
+        (least squares) to the target ratios; e.g. the paper's case 1: 0.62/0.85, 0.85/0.92."""
+        best = None
+        for idx in itertools.product(*(range(len(g)) for g in self.grids)):
+            err = (self.pm[idx] / reference["pm"] - pm_ratio) ** 2 + (
+                self.npm_pm[idx] / reference["npm_pm"] - npm_ratio
+            ) ** 2
+            if best is None or err < best[0]:
+                best = (err, idx)
+        assert best is not None
+        idx = best[1]
+        angles = tuple(float(self.grids[k][i]) for k, i in enumerate(idx))
+        return angles, float(self.pm[idx]), float(self.npm_pm[idx])
+
     def rows(self) -> list[dict]:
         out = []
         for idx in itertools.product(*(range(len(g)) for g in self.grids)):
