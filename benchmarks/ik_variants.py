@@ -41,54 +41,49 @@ def main() -> None:
             q0 = jnp.asarray(lo + rng.random((b, len(free))) * (hi - lo), jnp.float32)
             site = jnp.zeros(b, jnp.int32)
             pm = jnp.ones(b, bool)
+            args_in = (tgt, site, pm, q0)
             for mat in (0, 1, 3):
                 s = IKSettings(iterations=args.iterations, materialize=mat)
-                fn = jax.jit(
-                    jax.vmap(
-                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: ik_solve(
-                            robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q
-                        )
-                    )
+                rate, med, comp = _time_kernel(
+                    lambda t, si, p, q, s=s, f=free, qf=q_fixed: ik_solve(
+                        robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q
+                    ),
+                    args_in,
                 )
-                t0 = time.perf_counter()
-                c = fn.lower(tgt, site, pm, q0).compile()
-                comp = time.perf_counter() - t0
-                c(tgt, site, pm, q0).block_until_ready()
-                ts = []
-                for _ in range(5):
-                    t0 = time.perf_counter()
-                    c(tgt, site, pm, q0).block_until_ready()
-                    ts.append(time.perf_counter() - t0)
-                med = statistics.median(ts)
                 print(
-                    f"{spec:6s} batch {b:>9,} materialize {mat}: {b / med / 1e6:8.2f} M solves/s "
+                    f"{spec:6s} batch {b:>9,} materialize {mat}: {rate / 1e6:8.2f} M solves/s "
                     f"({med * 1e3:.2f} ms, {args.iterations} it, compile {comp:.1f} s)",
                     flush=True,
                 )
             for unroll in (False, True):
                 s = IKSettings(iterations=args.iterations, unroll_checks=unroll)
-                fn = jax.jit(
-                    jax.vmap(
-                        lambda t, si, p, q, s=s, f=free, qf=q_fixed: (
-                            ik_check(robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q).ok
-                        )
-                    )
+                rate, med, comp = _time_kernel(
+                    lambda t, si, p, q, s=s, f=free, qf=q_fixed: (
+                        ik_check(robot.arm, s, f, qf, (robot.tcp_site,), t, si, p, q).ok
+                    ),
+                    args_in,
                 )
-                t0 = time.perf_counter()
-                c = fn.lower(tgt, site, pm, q0).compile()
-                comp = time.perf_counter() - t0
-                c(tgt, site, pm, q0).block_until_ready()
-                ts = []
-                for _ in range(5):
-                    t0 = time.perf_counter()
-                    c(tgt, site, pm, q0).block_until_ready()
-                    ts.append(time.perf_counter() - t0)
-                med = statistics.median(ts)
                 print(
-                    f"{spec:6s} batch {b:>9,} checks only, unroll {unroll}: {b / med / 1e6:8.2f} M checks/s "
+                    f"{spec:6s} batch {b:>9,} checks only, unroll {unroll}: {rate / 1e6:8.2f} M checks/s "
                     f"({med * 1e3:.2f} ms, compile {comp:.1f} s)",
                     flush=True,
                 )
+
+
+def _time_kernel(one, args_in: tuple, repeats: int = 5) -> tuple[float, float, float]:
+    """Compile jit(vmap(one)) on `args_in`; return (items/s, median seconds, compile seconds)."""
+    fn = jax.jit(jax.vmap(one))
+    t0 = time.perf_counter()
+    c = fn.lower(*args_in).compile()
+    comp = time.perf_counter() - t0
+    c(*args_in).block_until_ready()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        c(*args_in).block_until_ready()
+        ts.append(time.perf_counter() - t0)
+    med = statistics.median(ts)
+    return len(args_in[0]) / med, med, comp
 
 
 if __name__ == "__main__":
