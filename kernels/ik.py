@@ -30,9 +30,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from .collision import capsule_box_clearance, capsule_endpoints, self_clearance, table_clearance
-from .kinematics import body_poses, joint_frames, point_in_world, point_jacobian, tool_axis
+from .kinematics import (
+    body_poses,
+    direction_jacobian,
+    joint_frames,
+    joint_values,
+    point_in_world,
+    point_jacobian,
+    tool_axis,
+)
 from .linalg import cholesky_solve
-from .math3 import Scalar, Vec, add, cvec, mul, sub, vcross, vsub
+from .math3 import Scalar, Vec, add, cvec, mul, neg, select, select_vec, sub, to_array, vcross, vsub
 from .model import ArmModel
 
 
@@ -56,14 +64,6 @@ class IKSettings(NamedTuple):
     unroll_checks: bool = False  # unroll the distance searches of the checks (fuses; larger code)
 
 
-def _joint_list(free: tuple[int, ...], q_fixed, q_free) -> list[Scalar]:
-    """Full joint list: traced free angles; locked angles as Python floats (folded into the
-    program) when `q_fixed` is numpy, or as traced values when it is a JAX array."""
-    pos = {j: k for k, j in enumerate(free)}
-    const = isinstance(q_fixed, np.ndarray)
-    return [q_free[pos[j]] if j in pos else (float(q_fixed[j]) if const else q_fixed[j]) for j in range(len(q_fixed))]
-
-
 def _barrier(tree):
     """Materialize the traced leaves of `tree` (keeps XLA from recomputing them per fusion)."""
     leaves, treedef = jax.tree_util.tree_flatten(tree)
@@ -85,20 +85,6 @@ def _table_groups(arm: ArmModel, free_idx: np.ndarray) -> list[list[int]]:
         if any(key):
             groups.setdefault(key, []).append(int(c))
     return list(groups.values())
-
-
-def _select(index: jnp.ndarray, options: list[Scalar]) -> Scalar:
-    """options[index] for a traced index; constant when all options are equal constants."""
-    if all(isinstance(o, float) for o in options) and len(set(options)) == 1:
-        return options[0]
-    out = options[-1]
-    for k in range(len(options) - 2, -1, -1):
-        out = jnp.where(index == k, options[k], out)
-    return out
-
-
-def _select_vec(index: jnp.ndarray, options: list[Vec]) -> Vec:
-    return tuple(_select(index, [o[k] for o in options]) for k in range(3))  # type: ignore[return-value]
 
 
 def ik_solve(
@@ -140,7 +126,7 @@ def ik_solve(
     tab_groups = _table_groups(arm, free_idx)
 
     def step(it: jnp.ndarray, qf: tuple[jnp.ndarray, ...]) -> tuple[jnp.ndarray, ...]:
-        poses = body_poses(tree, _joint_list(free, q_fixed, qf))
+        poses = body_poses(tree, joint_values(free, q_fixed, qf))
         if settings.materialize >= 1:
             poses = _barrier(poses)
         frames = joint_frames(tree, poses)
@@ -152,12 +138,12 @@ def ik_solve(
         # are computed once at the selected point and masked by whether the joint moves the
         # site's body.
         p_opts = [point_in_world(poses[b], cvec(arm.site_pos[s])) for s, b in zip(sites, site_bodies, strict=True)]
-        p_site = _select_vec(site, p_opts)
+        p_site = select_vec(site, p_opts)
         z_goal = jnp.clip(p_site[2], target[2], target[3])
         e_pos = (target[0] - p_site[0], target[1] - p_site[1], z_goal - p_site[2])
         cols = []
         for j in free:
-            mask = _select(site, [float(tree.ancestors[b, j]) for b in site_bodies])
+            mask = select(site, [float(tree.ancestors[b, j]) for b in site_bodies])
             c = vcross(frames[j].axis, vsub(p_site, frames[j].anchor))
             cols.append(tuple(mul(mask, x) for x in c))
         for k in range(3):
@@ -166,12 +152,12 @@ def ik_solve(
         # PM: the tool axis inside the cone (one row, only while violated) and, early on, a
         # fading pull toward straight down (three rows).
         z_tool = tool_axis(poses, arm.tool_body)
-        dz = point_jacobian_rot(tree, frames, arm.tool_body, z_tool, free)  # d z_tool / dq
+        dz = direction_jacobian(tree, frames, arm.tool_body, z_tool, free)  # d z_tool / dq
         tz = z_tool[2]
         w_cone = pm_f * (tz > -settings.cone_margin).astype(dtype)
         rows.append(([c[2] for c in dz], -settings.cone_margin - tz, w_cone))
         w_down = pm_f * settings.down_weight * jnp.maximum(0.0, 1.0 - it / down_iters)
-        e_down = (neg_(z_tool[0]), neg_(z_tool[1]), sub(-1.0, z_tool[2]))
+        e_down = (neg(z_tool[0]), neg(z_tool[1]), sub(-1.0, z_tool[2]))
         for k in range(3):
             rows.append(([c[k] for c in dz], e_down[k], w_down))
 
@@ -223,19 +209,6 @@ def ik_solve(
 
     q0 = tuple(jnp.clip(q0_free[k], lower[k], upper[k]) for k in range(nf))
     return jnp.stack(jax.lax.fori_loop(0, settings.iterations, step, q0))
-
-
-def neg_(x: Scalar) -> Scalar:
-    return sub(0.0, x)
-
-
-def _as(x: Scalar, like: jnp.ndarray) -> jnp.ndarray:
-    return jnp.full_like(like, x) if isinstance(x, float) else x
-
-
-def point_jacobian_rot(tree, frames, body: int, v: Vec, joints) -> list[Vec]:
-    """Columns d v / d q_j of a direction `v` fixed to `body` (axis_j x v)."""
-    return [vcross(frames[j].axis, v) if tree.ancestors[body, j] else (0.0, 0.0, 0.0) for j in joints]
 
 
 class IKCheck(NamedTuple):
@@ -291,13 +264,13 @@ def ik_check(
     """
     tree = arm.tree
     dtype = q_free.dtype
-    qv = _joint_list(free, q_fixed, q_free)
+    qv = joint_values(free, q_fixed, q_free)
     poses = body_poses(tree, qv)
     like = q_free[0]
-    p_site = _select_vec(site, [point_in_world(poses[int(arm.site_body[s])], cvec(arm.site_pos[s])) for s in sites])
+    p_site = select_vec(site, [point_in_world(poses[int(arm.site_body[s])], cvec(arm.site_pos[s])) for s in sites])
     dz = p_site[2] - jnp.clip(p_site[2], target[2], target[3])
     pos_err = jnp.sqrt((p_site[0] - target[0]) ** 2 + (p_site[1] - target[1]) ** 2 + dz * dz)
-    tool_z = _as(tool_axis(poses, arm.tool_body)[2], like)
+    tool_z = to_array(tool_axis(poses, arm.tool_body)[2], like)
     all_caps = list(range(len(arm.cap_r)))
     a_w, b_w = capsule_endpoints(arm, poses, all_caps, like)
     tab = np.asarray(arm.table_caps)
@@ -316,7 +289,7 @@ def ik_check(
         unroll=settings.unroll_checks,
     )
     cube = jnp.where(pm, jnp.min(cube_all), jnp.inf)
-    q = jnp.stack([_as(x, like) for x in qv])
+    q = jnp.stack([to_array(x, like) for x in qv])
     in_limits = jnp.all(q >= arm.lower - 1e-6) & jnp.all(q <= arm.upper + 1e-6)
     ok = (
         (pos_err <= settings.pos_tol)

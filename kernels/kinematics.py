@@ -77,6 +77,15 @@ def joint_frames(tree: Tree, poses: Sequence[Pose]) -> list[JointFrame]:
     return frames
 
 
+def joint_values(free: tuple[int, ...], q_fixed, q_free) -> list[Scalar]:
+    """The full joint list from the free variables: `q_free[k]` for free joint free[k]; a
+    locked joint's angle as a Python float (folded into the program) when `q_fixed` is
+    numpy, or as a traced value when it is a JAX array."""
+    pos = {j: k for k, j in enumerate(free)}
+    const = isinstance(q_fixed, np.ndarray)
+    return [q_free[pos[j]] if j in pos else (float(q_fixed[j]) if const else q_fixed[j]) for j in range(len(q_fixed))]
+
+
 def point_in_world(pose: Pose, p_body: Vec) -> Vec:
     return vadd(pose.pos, mvec(pose.rot, p_body))
 
@@ -96,6 +105,11 @@ def point_jacobian(
         else:
             cols.append((0.0, 0.0, 0.0))
     return cols
+
+
+def direction_jacobian(tree: Tree, frames: Sequence[JointFrame], body: int, v: Vec, joints: Sequence[int]) -> list[Vec]:
+    """Columns d v / d q_j of a direction `v` fixed to `body` (axis_j x v, or zero)."""
+    return [vcross(frames[j].axis, v) if tree.ancestors[body, j] else (0.0, 0.0, 0.0) for j in joints]
 
 
 # ----------------------------------------------------------------------------------------

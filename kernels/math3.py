@@ -164,6 +164,20 @@ def axis_rotation(axis: np.ndarray, angle: Scalar) -> Mat:
     )
 
 
+def select(index: jnp.ndarray, options: list[Scalar]) -> Scalar:
+    """options[index] for a traced integer index; a constant when all options are one constant."""
+    if all(is_const(o) for o in options) and len(set(options)) == 1:
+        return options[0]
+    out = options[-1]
+    for k in range(len(options) - 2, -1, -1):
+        out = jnp.where(index == k, options[k], out)
+    return out
+
+
+def select_vec(index: jnp.ndarray, options: list[Vec]) -> Vec:
+    return tuple(select(index, [o[k] for o in options]) for k in range(3))  # type: ignore[return-value]
+
+
 def to_array(x: Scalar, like: jnp.ndarray) -> jnp.ndarray:
     """A scalar as an array shaped and typed like `like` (constants are broadcast)."""
     if is_const(x):

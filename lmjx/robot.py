@@ -16,6 +16,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .kernels.dynamics import Inertials
 from .kernels.math3 import quat_to_mat
 from .kernels.model import ArmModel, Tree
 
@@ -44,6 +45,7 @@ class Robot:
     jerk_max: np.ndarray  # (7,) jerk limits [rad/s^3]
     tau_max: np.ndarray  # (7,) torque limits [Nm]
     friction: np.ndarray  # (3, 7) Gaz et al. friction parameters phi1, phi2, phi3
+    inertials: Inertials
     ready: np.ndarray  # (7,) Franka's ready pose
     site_names: tuple[str, ...]
     interaction_points: dict[str, int] = field(default_factory=dict)  # name -> site index
@@ -86,6 +88,20 @@ def _tree(m: mujoco.MjModel) -> Tree:
                 ancestors[b, joint[a]] = 1.0
             a = parent[a]
     return Tree(parent, joint, pos, rot, axis, anchor, joint_body, ancestors)
+
+
+def _inertials(m: mujoco.MjModel) -> Inertials:
+    """Mass, COM and inertia tensor (body frame) of every body but the world."""
+    inertia = []
+    for b in range(1, m.nbody):
+        r = quat_to_mat(m.body_iquat[b])
+        inertia.append(r @ np.diag(m.body_inertia[b]) @ r.T)
+    return Inertials(
+        mass=np.array(m.body_mass[1:], dtype=np.float64),
+        com=np.array(m.body_ipos[1:], dtype=np.float64),
+        inertia=np.array(inertia),
+        gravity=np.array(m.opt.gravity, dtype=np.float64),
+    )
 
 
 def _pair_is_checked(m: mujoco.MjModel, g1: int, g2: int) -> bool:
@@ -175,6 +191,7 @@ def load_robot(path: str | Path = MODEL_PATH) -> Robot:
         tau_max=_numeric(m, "lmjx_tau_max"),
         friction=np.stack([_numeric(m, f"lmjx_friction_phi{i}") for i in (1, 2, 3)]),
         ready=_numeric(m, "lmjx_ready"),
+        inertials=_inertials(m),
         site_names=site_names,
         interaction_points=ips,
         tcp_site=site_names.index(TCP_SITE),
