@@ -44,3 +44,25 @@ def cholesky_solve(h: Sequence[Sequence[Scalar]], g: Sequence[Scalar], eps: floa
             t = sub(t, mul(low[k][i], x[k]))
         x[i] = mul(t, inv_diag[i])
     return x
+
+
+def cholesky_sqrt_det(h: Sequence[Sequence[Scalar]], eps: float = 1e-30) -> Scalar:
+    """sqrt(det(h)) of a symmetric positive semi-definite h, as the product of the Cholesky
+    diagonal (only h[i][j], j <= i, is read); 0 when h is singular."""
+    n = len(h)
+    low: list[list[Scalar]] = [[0.0] * n for _ in range(n)]
+    out: Scalar = 1.0
+    for j in range(n):
+        s = h[j][j]
+        for k in range(j):
+            s = sub(s, mul(low[j][k], low[j][k]))
+        d = jnp.sqrt(jnp.maximum(s, 0.0))
+        out = mul(out, d)
+        inv_d = 1.0 / jnp.maximum(d, eps)
+        low[j][j] = d
+        for i in range(j + 1, n):
+            t = h[i][j]
+            for k in range(j):
+                t = sub(t, mul(low[i][k], low[j][k]))
+            low[i][j] = mul(t, inv_d)
+    return out
