@@ -1,5 +1,6 @@
 # lmjx: two commands do everything on a fresh machine.
-#   make run    create .venv, install the pinned dependencies, build the case-2 map on the CPU
+#   make run    create .venv, install the pinned dependencies, build the case-2 map (reach map +
+#               10,000 sampled edges) on the CPU
 #   make test   the same set-up, then the test suite
 PYTHON ?= python3
 VENV ?= .venv
@@ -15,7 +16,7 @@ $(STAMP): pyproject.toml requirements.lock
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/lmjx reach --failure case2 --out maps/case2_reach.h5 --png maps/case2_reach.png
+	$(BIN)/lmjx build-map --failure case2 --out maps/case2.h5
 
 test: $(STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks

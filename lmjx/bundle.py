@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -321,8 +321,3 @@ def spatial_index(
     index_offset = np.zeros(ny * nx + 1, np.int64)
     index_offset[1:] = np.cumsum(counts)
     return index_offset, edges
-
-
-def bundle_config_dict(config: BundleConfig) -> dict:
-    d = asdict(config)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}

@@ -99,6 +99,27 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device(p)
 
     p = sub.add_parser(
+        "build-map",
+        help="Reach-Ability map + kinodynamic edge bundle in one HDF5 file (paper Algorithms 1-2)",
+        description="Build a failure's map: the Reach-Ability map, then N Monte Carlo edges: from a reachable cell "
+        "and an interaction point, a constant twist followed for a sampled duration with the arm's dynamics "
+        "(tau = M qdd + C qd + g + friction), rejecting any edge that breaks a position, velocity, acceleration "
+        "or torque limit or collides with the table or itself.  Valid edges are stored with every state and a "
+        "spatial index per cell (schema: maps/README.md).",
+    )
+    p.add_argument("--failure", required=True, help="none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
+    p.add_argument(
+        "--edges",
+        type=_positive_int,
+        help="edges to sample (default: 10,000 on a CPU, 100,000 on a GPU); only valid ones are stored",
+    )
+    p.add_argument("--out", help="map file to write (default maps/<failure>.h5)")
+    p.add_argument("--seed", type=int, default=0, help="random seed for the map and the edges (default 0)")
+    p.add_argument("--cell", type=_positive_float, default=0.02, help="reach cell edge in metres (default 0.02)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
         "lock-search",
         help="Reach-Ability areas over a grid of lock angles",
         description="For the given locked joints, compute a full Reach-Ability map at every combination of lock "
@@ -304,6 +325,56 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
     return 0
 
 
+def _default_map_path(spec: str) -> str:
+    safe = "".join(c if c.isalnum() or c in "-." else "_" for c in spec)
+    return f"maps/{safe}.h5"
+
+
+def cmd_build_map(args: argparse.Namespace) -> int:
+    from .bundle import BundleConfig, build_bundle
+    from .failure import parse_failure
+    from .fileio import check_writable
+    from .reach import ReachConfig, reach_map
+    from .robot import load_robot
+
+    robot = load_robot()
+    failure = parse_failure(args.failure, robot)
+    reach_cfg = ReachConfig(cell=args.cell, seed=args.seed)
+    reach_cfg.validate(robot)
+    bundle_cfg = BundleConfig(edges=args.edges, seed=args.seed)
+    bundle_cfg.validate(robot)
+    out = args.out or _default_map_path(failure.spec)
+    check_writable(out, "map file")
+    reach = reach_map(failure, reach_cfg, robot=robot, progress=True)
+    bundle = build_bundle(reach, bundle_cfg, robot=robot, progress=True)
+    from .mapfile import write_map
+
+    sizes = write_map(out, reach, bundle, robot)
+    s = bundle.summary()
+    summary = {
+        "failure": failure.spec,
+        "out": out,
+        "seed": args.seed,
+        "reach": {k: reach.summary()[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")},
+        "edges": s,
+        "bytes_per_state": round(sizes.get("bytes_per_state", 0.0), 2),
+        "raw_bytes_per_state": round(sizes.get("raw_bytes_per_state", 0.0), 2),
+        "device": s["device"],
+    }
+    rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)
+    lines = [
+        f"failure {failure.describe()} on {s['device']}: map written to {out}",
+        f"  reach: PM {reach.areas()['pm']:.4f} m^2, NPM+PM {reach.areas()['npm_pm']:.4f} m^2 ({reach.seconds:.2f} s)",
+        f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
+        f"  rollouts: {s['edge_steps']:,} edge-steps in {s['rollout_seconds']:.2f} s "
+        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile",
+        f"  storage: {summary['bytes_per_state']:.1f} bytes per stored state "
+        f"({summary['raw_bytes_per_state']:.0f} uncompressed)",
+    ]
+    _emit(args, summary, lines)
+    return 0
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     from .mapfile import load_map
 
@@ -330,6 +401,23 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"  reach map: {len(r.xs)} x {len(r.ys)} cells of {r.config.cell * 100:g} cm, seed {r.config.seed}",
             f"    PM {s['area_m2']['pm']:.4f} m^2, NPM+PM {s['area_m2']['npm_pm']:.4f} m^2 (smoothed)",
         ]
+    if m.edges is not None:
+        b = m.edges
+        bs = b.summary()
+        info["edges"] = {
+            "sampled": bs["edges_sampled"],
+            "valid": bs["edges_valid"],
+            "states": bs["states"],
+            "rejected": bs["rejected"],
+            "bytes_per_state": float(m.edges_attrs.get("bytes_per_state", float("nan"))),
+            "seed": b.config.seed,
+        }
+        lines += [
+            f"  edges: {bs['edges_valid']:,} valid of {bs['edges_sampled']:,} sampled, {bs['states']:,} states, "
+            f"dt {b.config.dt:g} s, seed {b.config.seed}",
+            f"    {info['edges']['bytes_per_state']:.1f} bytes per stored state; spatial index over "
+            f"{int((b.index_offset[1:] > b.index_offset[:-1]).sum())} cells",
+        ]
     _emit(args, info, lines)
     return 0
 
@@ -340,7 +428,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return run_bench(args)
 
 
-COMMANDS = {"reach": cmd_reach, "lock-search": cmd_lock_search, "info": cmd_info, "bench": cmd_bench}
+COMMANDS = {
+    "build-map": cmd_build_map,
+    "reach": cmd_reach,
+    "lock-search": cmd_lock_search,
+    "info": cmd_info,
+    "bench": cmd_bench,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -16,10 +16,11 @@ import h5py
 import numpy as np
 
 from . import __version__
+from .bundle import Bundle, BundleConfig
 from .errors import MapFileError
 from .failure import Failure
 from .fileio import atomic_path
-from .reach import ReachConfig, ReachResult, config_dict
+from .reach import ReachConfig, ReachResult
 from .robot import Robot, load_robot
 
 SCHEMA = "lmjx-map"
@@ -58,12 +59,7 @@ def _write_robot(f: h5py.File, robot: Robot) -> None:
 def _write_reach(f: h5py.File, result: ReachResult) -> None:
     g = f.create_group("reach", track_order=True)
     g.attrs["doc"] = "Reach-Ability map (paper Algorithm 1); arrays indexed [iy, ix]."
-    for k, v in config_dict(result.config).items():
-        if v is None:
-            v = float("nan")
-        if isinstance(v, list):
-            v = np.array([str(x) for x in v], dtype=object) if v and isinstance(v[0], str) else np.array(v)
-        g.attrs[k] = v
+    _config_to_attrs(g, result.config)
     eps = result.config.epsilon if result.config.epsilon is not None else result.config.cell / 2
     g.attrs["epsilon_used"] = eps
     areas, raw = result.areas(True), result.areas(False)
@@ -93,12 +89,92 @@ def _write_reach(f: h5py.File, result: ReachResult) -> None:
 
 
 def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | None = None) -> None:
-    """Write a map file holding `result`; atomic (temp file, then rename)."""
+    """Write a map file holding only a Reach-Ability map; atomic (temp file, then rename)."""
+    write_map(path, result, None, robot)
+
+
+def write_map(path: str | Path, reach: ReachResult, bundle: Bundle | None, robot: Robot | None = None) -> dict:
+    """Write a map file: the Reach-Ability map and, when given, the edge bundle.  Atomic
+    (temp file, then rename).  Returns storage figures (bytes per stored edge state)."""
     robot = robot or load_robot()
-    with atomic_path(path) as tmp, h5py.File(tmp, "w", track_order=True) as f:
-        _write_header(f, robot, result.failure, contents="reach")
-        _write_robot(f, robot)
-        _write_reach(f, result)
+    sizes: dict = {}
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w", track_order=True) as f:
+            _write_header(f, robot, reach.failure, contents="reach" if bundle is None else "reach+edges")
+            _write_robot(f, robot)
+            _write_reach(f, reach)
+            if bundle is not None:
+                sizes = _write_edges(f, bundle, reach)
+        if bundle is not None and len(bundle.q):
+            sizes["file_bytes_per_state"] = Path(tmp).stat().st_size / len(bundle.q)
+    return sizes
+
+
+def _write_edges(f: h5py.File, b: Bundle, reach: ReachResult) -> dict:
+    g = f.create_group("edges", track_order=True)
+    g.attrs["doc"] = (
+        "Edge bundle (paper Algorithm 2): valid edges stored flat; edge e's states are rows "
+        "offset[e] .. offset[e] + length[e] - 1 of q, qd and p."
+    )
+    _config_to_attrs(g, b.config)
+    g.attrs["steps_max"] = b.config.steps
+    g.attrs["edges_sampled"] = b.sampled
+    g.attrs["edges_valid"] = b.n_edges
+    for reason, count in b.rejected.items():
+        g.attrs[f"rejected_{reason}"] = count
+    for k in ("seconds", "compile_seconds", "rollout_seconds"):
+        g.attrs[k] = getattr(b, k)
+    g.attrs["edge_steps"] = b.edge_steps
+    g.attrs["states_evaluated"] = b.states_evaluated
+    g.attrs["device"] = b.device
+    per_state = {
+        "q": (b.q, "joint angles J1..J7 at each state [rad] (locked joints at their angles)"),
+        "qd": (b.qd, "joint velocities J1..J7 at each state [rad/s] (J^+ of the twist)"),
+        "p": (b.p, "world position of the edge's interaction point at each state [m]"),
+    }
+    for name, (data, doc) in per_state.items():
+        ds = g.create_dataset(
+            name,
+            data=data,
+            chunks=(min(max(len(data), 1), 16384), data.shape[1]),
+            compression="gzip",
+            compression_opts=4,
+            shuffle=True,
+            track_times=False,
+        )
+        ds.attrs["doc"] = doc
+    per_edge = {
+        "offset": (b.offset, "first row of each edge in q, qd, p"),
+        "length": (b.length, "states per edge (control steps + 1)"),
+        "twist": (b.twist, "commanded twist of the interaction point: vx, vy, vz [m/s], wx, wy, wz [rad/s]"),
+        "duration": (b.duration, "edge duration [s] = (length - 1) * dt"),
+        "site": (b.site, "index into /robot/site_names of the edge's interaction point"),
+        "start_cell": (b.start_cell, "(iy, ix) of the reach cell the edge starts from"),
+        "min_manipulability": (b.min_manipulability, "smallest sqrt(det(J J^T)) along the edge"),
+        "peak_torque_ratio": (b.peak_torque_ratio, "max |tau_i| / tau_max_i over free joints and states"),
+        "peak_velocity_ratio": (b.peak_velocity_ratio, "max |qd_i| / qd_max_i"),
+        "peak_acceleration_ratio": (b.peak_acceleration_ratio, "max |qdd_i| / qdd_max_i"),
+    }
+    for name, (data, doc) in per_edge.items():
+        _dataset(g, name, data, doc)
+    idx = g.create_group("index", track_order=True)
+    idx.attrs["doc"] = (
+        "Edges over each reach cell (CSR): the edges of cell c = iy * nx + ix are "
+        "edges[offset[c] : offset[c + 1]]; an edge is listed when its interaction point passes "
+        "over the cell with the link's lowest surface at most `height` above the table."
+    )
+    idx.attrs["nx"] = len(reach.xs)
+    idx.attrs["ny"] = len(reach.ys)
+    idx.attrs["cell"] = reach.config.cell
+    idx.attrs["height"] = b.config.index_height
+    _dataset(idx, "offset", b.index_offset, "CSR offsets, length ny * nx + 1")
+    _dataset(idx, "edges", b.index_edges, "edge ids")
+    n_states = max(len(b.q), 1)
+    stored = sum(g[k].id.get_storage_size() for k in ("q", "qd", "p"))
+    raw = sum(np.asarray(g[k]).nbytes for k in ("q", "qd", "p"))
+    g.attrs["bytes_per_state"] = stored / n_states
+    g.attrs["raw_bytes_per_state"] = raw / n_states
+    return {"bytes_per_state": stored / n_states, "raw_bytes_per_state": raw / n_states}
 
 
 def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -> None:
@@ -121,6 +197,8 @@ class MapFile:
     attrs: dict
     failure: Failure
     reach: ReachResult | None
+    edges: Bundle | None = None
+    edges_attrs: dict = dataclasses.field(default_factory=dict)
 
 
 def _attr_str(x: object) -> str:
@@ -163,17 +241,30 @@ def load_map(path: str | Path, robot: Robot | None = None, check_robot: bool = T
             fail_name = _attr_str(attrs["failure"])
             failure = Failure(fail_name, locked)
             reach = _read_reach(f["reach"], failure, robot, attrs) if "reach" in f else None
+            edges = _read_edges(f["edges"], failure) if "edges" in f else None
+            edges_attrs = dict(f["edges"].attrs) if "edges" in f else {}
     except MapFileError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
-    return MapFile(p, attrs, failure, reach)
+    return MapFile(p, attrs, failure, reach, edges, edges_attrs)
 
 
-def _config_from_attrs(a: dict) -> ReachConfig:
-    """Rebuild a ReachConfig from group attributes, casting each field like its default."""
+def _config_to_attrs(g: h5py.Group, config: object) -> None:
+    """Every field of a config dataclass as a group attribute (None as NaN)."""
+    for f in dataclasses.fields(config):  # type: ignore[arg-type]
+        v = getattr(config, f.name)
+        if v is None:
+            v = float("nan")
+        if isinstance(v, tuple):
+            v = np.array([str(x) for x in v], dtype=object) if v and isinstance(v[0], str) else np.array(v)
+        g.attrs[f.name] = v
+
+
+def _config_from_attrs(cls: type, a: dict):
+    """Rebuild a config dataclass from group attributes, casting each field like its default."""
     values = {}
-    for f in dataclasses.fields(ReachConfig):
+    for f in dataclasses.fields(cls):
         if f.name not in a:
             continue
         v = a[f.name]
@@ -184,20 +275,20 @@ def _config_from_attrs(a: dict) -> ReachConfig:
             values[f.name] = tuple(_attr_str(x) if isinstance(x, (str, bytes)) else float(x) for x in v)
         elif isinstance(default, bool):
             values[f.name] = bool(v)
-        elif isinstance(default, int):
+        elif isinstance(default, int) or (default is None and float(v).is_integer()):
             values[f.name] = int(v)
         elif isinstance(default, str):
             values[f.name] = _attr_str(v)
         else:
             values[f.name] = float(v)
-    return ReachConfig(**values)
+    return cls(**values)
 
 
 def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> ReachResult:
     a = dict(g.attrs)
     return ReachResult(
         failure=failure,
-        config=_config_from_attrs(a),
+        config=_config_from_attrs(ReachConfig, a),
         xs=g["x"][...],
         ys=g["y"][...],
         labels=g["labels"][...],
@@ -214,4 +305,40 @@ def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> Re
         problems=int(a["problems"]),
         robot_hash=_attr_str(root["robot_model_hash"]),
         site_names=robot.site_names,
+    )
+
+
+def _read_edges(g: h5py.Group, failure: Failure) -> Bundle:
+    a = dict(g.attrs)
+    offset = g["offset"][...]
+    length = g["length"][...]
+    q = g["q"][...]
+    if len(offset) and int(offset[-1] + length[-1]) != len(q):
+        raise MapFileError("the edge offsets do not match the stored states; rebuild the map")
+    return Bundle(
+        config=_config_from_attrs(BundleConfig, a),
+        failure=failure,
+        offset=offset,
+        length=length,
+        q=q,
+        qd=g["qd"][...],
+        p=g["p"][...],
+        twist=g["twist"][...],
+        duration=g["duration"][...],
+        site=g["site"][...],
+        start_cell=g["start_cell"][...],
+        min_manipulability=g["min_manipulability"][...],
+        peak_torque_ratio=g["peak_torque_ratio"][...],
+        peak_velocity_ratio=g["peak_velocity_ratio"][...],
+        peak_acceleration_ratio=g["peak_acceleration_ratio"][...],
+        index_offset=g["index/offset"][...],
+        index_edges=g["index/edges"][...],
+        sampled=int(a["edges_sampled"]),
+        rejected={k[len("rejected_") :]: int(v) for k, v in a.items() if k.startswith("rejected_")},
+        seconds=float(a["seconds"]),
+        compile_seconds=float(a["compile_seconds"]),
+        rollout_seconds=float(a["rollout_seconds"]),
+        edge_steps=int(a["edge_steps"]),
+        states_evaluated=int(a["states_evaluated"]),
+        device=_attr_str(a["device"]),
     )

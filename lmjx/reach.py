@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -318,9 +318,3 @@ def reach_map(
         robot_hash=robot.model_hash,
         site_names=robot.site_names,
     )
-
-
-def config_dict(config: ReachConfig) -> dict:
-    """The config as plain JSON-able values."""
-    d = asdict(config)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
