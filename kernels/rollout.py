@@ -11,7 +11,8 @@ Per state k = 0 .. L (L control steps of dt):
     limits (free joints), or a capsule pair or the table is penetrated;
     q_{k+1} = q_k + qd_k dt.
 J is the 6 x n_free Jacobian (linear velocity of the point, angular velocity of its body);
-J^+ is the damped least-squares inverse (J^T J + lambda I)^-1 J^T, and Jdot qd is exact
+J^+ is the damped least-squares inverse (J^T (J J^T + lambda I)^-1 for a redundant arm,
+(J^T J + lambda I)^-1 J^T when fewer than 6 joints move), and Jdot qd is exact
 (forward-mode derivative of J along qd).  Shapes are fixed (`steps + 1` state rows per
 edge); the loop over states stops at the edge's length or first violation.  Pure functions of one edge; batch with
 `jax.vmap`, jit at the entry point.
@@ -88,8 +89,17 @@ def _jacobian(arm: ArmModel, free: tuple[int, ...], q_fixed, sites: tuple[int, .
 
 
 def _lstsq(jac: jnp.ndarray, b: list[Scalar], damping: float) -> list[Scalar]:
-    """(J^T J + damping I)^-1 J^T b for J (6, nf)."""
+    """Damped least-squares J^+ b for J (6, nf): J^T (J J^T + damping I)^-1 b when the arm is
+    redundant (nf >= 6: the minimum-norm solution, well conditioned away from singularities),
+    (J^T J + damping I)^-1 J^T b otherwise (the least-squares solution).  Both are J^+ b as
+    the damping goes to zero."""
     nf = jac.shape[1]
+    if nf >= 6:
+        h = [[sum(jac[i, c] * jac[j, c] for c in range(nf)) for j in range(i + 1)] for i in range(6)]
+        for i in range(6):
+            h[i][i] = h[i][i] + damping
+        y = cholesky_solve(h, b)
+        return [sum(jac[r, c] * y[r] for r in range(6)) for c in range(nf)]
     h = [[sum(jac[r, i] * jac[r, j] for r in range(6)) for j in range(i + 1)] for i in range(nf)]
     for i in range(nf):
         h[i][i] = h[i][i] + damping

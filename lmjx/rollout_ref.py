@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from .failure import Failure
-from .kernels.rollout import REASONS, RolloutSettings
+from .kernels.rollout import REASONS, Limits, RolloutSettings
 from .robot import Robot
 
 
@@ -32,16 +32,20 @@ class ReferenceEdge:
     reason: str
 
 
-def gaz_friction(robot: Robot, qd: np.ndarray) -> np.ndarray:
-    p1, p2, p3 = robot.friction
+def gaz_friction(phi: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Gaz et al. joint friction; phi is (3, nj)."""
+    p1, p2, p3 = phi
     return p1 / (1 + np.exp(-p2 * (qd + p3))) - p1 / (1 + np.exp(-p2 * p3))
 
 
 class ReferenceRollout:
     """Serial C MuJoCo rollouts for one failure and one point (site)."""
 
-    def __init__(self, robot: Robot, failure: Failure, settings: RolloutSettings) -> None:
+    def __init__(
+        self, robot: Robot, failure: Failure, settings: RolloutSettings, limits: Limits | None = None
+    ) -> None:
         self.robot = robot
+        self.limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
         self.m = robot.mj
         self.d = mujoco.MjData(self.m)
         self.free = np.array(failure.free(robot.nq))
@@ -56,7 +60,10 @@ class ReferenceRollout:
 
     def _lstsq(self, jac: np.ndarray, b: np.ndarray) -> np.ndarray:
         nf = jac.shape[1]
-        return np.linalg.solve(jac.T @ jac + self.settings.damping * np.eye(nf), jac.T @ b)
+        lam = self.settings.damping
+        if nf >= 6:
+            return jac.T @ np.linalg.solve(jac @ jac.T + lam * np.eye(6), b)
+        return np.linalg.solve(jac.T @ jac + lam * np.eye(nf), jac.T @ b)
 
     def run(self, site: int, q0_free: np.ndarray, twist: np.ndarray, length: int) -> ReferenceEdge:
         m, d, free, s = self.m, self.d, self.free, self.settings
@@ -84,15 +91,15 @@ class ReferenceRollout:
             d.qacc[:] = qdd
             rne = np.zeros(m.nv)
             mujoco.mj_rne(m, d, 1, rne)  # M qdd + C qd + g: mj_inverse without contact forces
-            tau = rne + gaz_friction(r, qd)
+            tau = rne + gaz_friction(self.limits.friction, qd)
             mujoco.mj_forward(m, d)  # contacts at this configuration (velocities do not matter)
             jj = jac @ jac.T if len(free) >= 6 else jac.T @ jac
             manip = float(np.sqrt(max(np.linalg.det(jj), 0.0)))
             fails = [
                 bool(np.any(q[free] < r.lower[free] - 1e-6) or np.any(q[free] > r.upper[free] + 1e-6)),
-                bool(np.any(np.abs(qd[free]) > r.qd_max[free])),
-                bool(np.any(np.abs(qdd[free]) > r.qdd_max[free])),
-                bool(np.any(np.abs(tau[free]) > r.tau_max[free])),
+                bool(np.any(np.abs(qd[free]) > self.limits.qd_max[free])),
+                bool(np.any(np.abs(qdd[free]) > self.limits.qdd_max[free])),
+                bool(np.any(np.abs(tau[free]) > self.limits.tau_max[free])),
                 any(m.geom_bodyid[c.geom1] != 0 and m.geom_bodyid[c.geom2] != 0 for c in d.contact[: d.ncon]),
                 any(m.geom_bodyid[c.geom1] == 0 or m.geom_bodyid[c.geom2] == 0 for c in d.contact[: d.ncon]),
             ]

@@ -107,3 +107,55 @@ def test_bench_quick_runs(tmp_path):
     assert rep["ik"][0]["solve_per_s"] > 0 and rep["maps"][0]["seconds"] > 0
     assert "pybullet" in rep and "pytorch_kinematics" in rep
     assert "lmjx IK" in r.stdout
+
+
+def test_build_map_bad_input_and_interrupt(tmp_path):
+    for args, message in (
+        (["build-map", "--failure", "J9=0"], "J9 does not exist"),
+        (["build-map", "--failure", "case2", "--edges", "0"], "--edges"),
+        (["build-map", "--failure", "case2", "--out", "/proc/x/map.h5"], "cannot"),
+    ):
+        r = lmjx(*args)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
+    out = tmp_path / "map.h5"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--cell", "0.05", "--edges", "200000",
+         "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
+    )  # fmt: skip
+    time.sleep(20)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.fixture(scope="module")
+def small_map_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("info") / "m.h5"
+    r = lmjx("reach", "--failure", "none", "--cell", "0.2", "--out", str(path))
+    assert r.returncode == 0, r.stderr
+    return path
+
+
+@pytest.mark.parametrize("kind", ["truncated", "not_hdf5", "schema", "model"])
+def test_info_refuses_bad_files(tmp_path, small_map_file, kind):
+    import shutil
+
+    import h5py
+
+    path = tmp_path / "m.h5"
+    shutil.copy(small_map_file, path)
+    if kind == "truncated":
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 3])
+    elif kind == "not_hdf5":
+        path.write_text("hello")
+    else:
+        with h5py.File(path, "a") as f:
+            if kind == "schema":
+                f.attrs["schema_version"] = 7
+            else:
+                f.attrs["robot_model_hash"] = "f" * 64
+    r = lmjx("info", str(path))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr

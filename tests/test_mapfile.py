@@ -92,3 +92,95 @@ def test_validation_errors(small_map, tmp_path):
         f["x"] = 1
     with pytest.raises(MapFileError, match="not an lmjx map"):
         load_map(other)
+
+
+def _datasets(path):
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+        attrs = {k: f.attrs[k] for k in f.attrs}
+    return out, attrs
+
+
+@pytest.fixture(scope="module")
+def built_maps(tmp_path_factory):
+    """The same build-map command twice (same seed) and once with another seed."""
+    import subprocess
+    import sys
+
+    d = tmp_path_factory.mktemp("built")
+    paths = []
+    for name, seed in (("a.h5", 5), ("b.h5", 5)):
+        p = d / name
+        r = subprocess.run(
+            [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "400", "--cell", "0.05",
+             "--seed", str(seed), "--out", str(p), "--json"],
+            capture_output=True, text=True, timeout=900, env={**__import__("os").environ, "JAX_PLATFORMS": "cpu"},
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        paths.append(p)
+    return paths
+
+
+def test_same_command_same_seed_identical_datasets(built_maps):
+    a, b = built_maps
+    da, aa = _datasets(a)
+    db, ab = _datasets(b)
+    assert set(da) == set(db) and "edges/q" in da and "reach/labels" in da
+    for k in da:
+        x, y = np.asarray(da[k]), np.asarray(db[k])
+        same = np.array_equal(x, y, equal_nan=True) if x.dtype.kind == "f" else np.array_equal(x, y)
+        assert same, k
+    assert {k: str(v) for k, v in aa.items()} == {k: str(v) for k, v in ab.items()}
+    # (another seed gives other edges: tests/test_bundle.py)
+
+
+def test_reconstruct_an_edge_with_plain_h5py(built_maps):
+    """Following maps/README.md only: find the edges over a cell, slice one out, and check it
+    against the stored model with MuJoCo's own FK."""
+    import mujoco
+
+    path = built_maps[0]
+    with h5py.File(path, "r") as f:
+        e = f["edges"]
+        off, ln = e["offset"][...], e["length"][...]
+        assert f.attrs["contents"] == "reach+edges"
+        nx = int(e["index"].attrs["nx"])
+        io, ie = e["index/offset"][...], e["index/edges"][...]
+        c = int(np.argmax(np.diff(io)))  # the busiest cell
+        edge = int(ie[io[c]])
+        iy, ix = divmod(c, nx)
+        rows = slice(int(off[edge]), int(off[edge] + ln[edge]))
+        q, qd, p = e["q"][rows], e["qd"][rows], e["p"][rows]
+        dt = float(e.attrs["dt"])
+        site = f["robot/site_names"][e["site"][edge]].decode()
+        twist = e["twist"][edge]
+        mjcf = f["robot/mjcf"][()].decode()
+        x, y = f["reach/x"][ix], f["reach/y"][iy]
+        cell = float(f["reach"].attrs["cell"])
+    assert len(q) == ln[edge] >= 2 and twist.shape == (6,)
+    np.testing.assert_allclose(q[1:], q[:-1] + qd[:-1] * dt, atol=1e-5)  # the integration rule
+    m = mujoco.MjModel.from_xml_string(mjcf)
+    d = mujoco.MjData(m)
+    for qi, pi in zip(q, p, strict=True):
+        d.qpos[:] = qi
+        mujoco.mj_kinematics(m, d)
+        np.testing.assert_allclose(d.site_xpos[m.site(site).id], pi, atol=1e-5)
+    assert np.min(np.hypot(p[:, 0] - x, p[:, 1] - y)) <= cell  # it does pass by that cell
+
+
+def test_load_map_with_edges(built_maps):
+    m = load_map(built_maps[0])
+    assert m.edges is not None and m.edges.n_edges > 0
+    assert m.edges.config.seed == 5 and m.edges.sampled == 400
+    e = m.edges.edge(0)
+    assert e["q"].shape[1] == 7 and len(e["q"]) == m.edges.length[0]
+
+
+def test_damaged_edge_file_is_refused(built_maps, tmp_path):
+    bad = tmp_path / "bad.h5"
+    shutil.copy(built_maps[0], bad)
+    with h5py.File(bad, "a") as f:
+        del f["edges/q"]
+    with pytest.raises(MapFileError, match="damaged or incomplete"):
+        load_map(bad)
