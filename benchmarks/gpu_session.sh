@@ -42,6 +42,12 @@ for step in $steps; do
         tail -2 "$WORK/reach_$f.err"
       done
       python3 benchmarks/compare_maps.py out/cpu_maps "$WORK" ;;
+    edges)
+      timeout 300 python3 -m lmjx.cli build-map --failure case2 --edges 10000 --out "$WORK/case2_10k.h5" --json \
+        2> "$WORK/edges10k.err"
+      python3 benchmarks/compare_edges.py out/cpu_maps/case2_10k.h5 "$WORK/case2_10k.h5"
+      timeout 300 python3 -m lmjx.cli build-map --failure case2 --out "$WORK/case2_100k.h5" --json 2> "$WORK/edges100k.err"
+      tail -3 "$WORK/edges100k.err" ;;
     locks1)
       timeout 300 python3 -m lmjx.cli lock-search --joints J3,J5 --base J7=0.785398 --grid 7 --out "$OUT/lock_j3j5.json" \
         --png "$OUT/lock_j3j5.png" | tail -3 ;;

@@ -189,6 +189,59 @@ def bench_maps(robot: Robot, failures: list[str], config: ReachConfig) -> list[d
     return rows
 
 
+def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int) -> dict:
+    """Edge rollouts (case 2, the default edge settings) against the serial C MuJoCo loop
+    doing the same computation and checks on the first `reference_edges` of the same edges."""
+    from .bundle import BundleConfig, roll_out, sample_edges
+    from .rollout_ref import ReferenceRollout
+
+    reach = reach_map("case2", ReachConfig(), robot=robot)
+    config = BundleConfig(edges=edges, seed=1)
+    samples = sample_edges(reach, config, robot)
+    idx, out, kernel = roll_out(robot, reach.failure, samples, config)  # compiles, then one run
+    compile_s = kernel.compile_seconds
+    t_first = kernel.kernel_seconds
+    times = []
+    for _ in range(repeats):  # later calls find the compiled program in the process cache
+        t0 = time.perf_counter()
+        idx, out, kernel = roll_out(robot, reach.failure, samples, config)
+        times.append(time.perf_counter() - t0 - kernel.compile_seconds)
+    t = statistics.median(times)
+    evaluated = int(np.sum(np.where(out["valid"], samples.length[idx], out["fail_step"]) + 1))
+    nominal = len(idx) * config.steps
+
+    ref = ReferenceRollout(robot, reach.failure, config.rollout_settings())
+    sel = idx[:reference_edges]
+    t0 = time.perf_counter()
+    ref_states = 0
+    for e in sel:
+        r = ref.run(samples.sites[samples.which[e]], samples.q_start[e].astype(np.float64),
+                    samples.twist[e].astype(np.float64), int(samples.length[e]))  # fmt: skip
+        ref_states += len(r.q)
+    t_ref = time.perf_counter() - t0
+    return {
+        "failure": "case2",
+        "edges_rolled_out": len(idx),
+        "max_steps": config.steps,
+        "valid": int(out["valid"].sum()),
+        "compile_s": round(compile_s, 3),
+        "first_run_s": round(t_first, 4),
+        "seconds": t,
+        "edge_steps": nominal,
+        "edge_steps_per_s": nominal / t,
+        "states_evaluated": evaluated,
+        "states_per_s": evaluated / t,
+        "reference": {
+            "what": "serial C MuJoCo loop (mj_jacSite, mj_jacDot, mj_rne, contacts), one thread",
+            "edges": len(sel),
+            "states": ref_states,
+            "seconds": t_ref,
+            "states_per_s": ref_states / t_ref,
+        },
+        "speedup_states": (evaluated / t) / (ref_states / t_ref),
+    }
+
+
 def _fmt_rate(x: float) -> str:
     return f"{x / 1e6:.2f} M/s" if x >= 1e5 else f"{x / 1e3:.1f} k/s"
 
@@ -228,6 +281,8 @@ def run_bench(args: argparse.Namespace) -> int:
         report["pybullet"] = {"skipped": str(e)}
     map_cfg = ReachConfig(cell=0.05) if args.quick else ReachConfig()
     report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", "case1", "case2"], map_cfg)
+    n_edges = 500 if args.quick else (100_000 if on_gpu else 5_000)
+    report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats)
 
     best = max(r["solve_check_per_s"] for r in report["ik"])
     ratios = {}
@@ -237,6 +292,7 @@ def run_bench(args: argparse.Namespace) -> int:
         same = [r for r in report["ik"] if r["batch"] == report["pytorch_kinematics"]["batch"]]
         ref = same[0]["solve_check_per_s"] if same else best
         ratios["lmjx_vs_pytorch_kinematics_same_batch"] = ref / report["pytorch_kinematics"]["solve_per_s"]
+    ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
     report["ratios"] = ratios
 
     if args.out:
@@ -277,6 +333,17 @@ def run_bench(args: argparse.Namespace) -> int:
             f"{m['seconds']:.3f} s (compile {m['compile_s']:.1f} s), PM {m['area_m2']['pm']:.3f} m^2, "
             f"NPM+PM {m['area_m2']['npm_pm']:.3f} m^2"
         )
+    ro = report["rollouts"]
+    print(
+        f"  edge rollouts ({ro['failure']}, {ro['edges_rolled_out']:,} edges of up to {ro['max_steps']} steps): "
+        f"{ro['seconds']:.3f} s (compile {ro['compile_s']:.1f} s): {_fmt_rate(ro['edge_steps_per_s'])} edge-steps, "
+        f"{_fmt_rate(ro['states_per_s'])} states evaluated"
+    )
+    rr = ro["reference"]
+    print(
+        f"  serial C MuJoCo rollouts, same edges ({rr['edges']}): {_fmt_rate(rr['states_per_s'])} states; "
+        f"lmjx {ro['speedup_states']:,.0f}x"
+    )
     for k, v in ratios.items():
         print(f"  {k}: {v:,.1f}x")
     return 0

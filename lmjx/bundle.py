@@ -154,16 +154,26 @@ def _rollout_kernel(robot: Robot, failure: Failure, sites: tuple[int, ...], sett
     return ChunkedKernel(key, one, [], inputs, chunk)
 
 
-def build_bundle(
-    reach: ReachResult, config: BundleConfig | None = None, robot: Robot | None = None, progress: bool = False
-) -> Bundle:
-    """Sample, solve and roll out the edges of `reach`'s failure."""
-    robot = robot or load_robot()
-    config = config or BundleConfig()
-    config.validate(robot)
+@dataclass
+class EdgeSamples:
+    """Sampled edges and their solved starts (the inputs of the rollouts)."""
+
+    sites: tuple[int, ...]  # model site of each interaction point; `which` indexes it
+    start: np.ndarray  # (n, 2) reach cell (iy, ix)
+    which: np.ndarray  # (n,) int32
+    twist: np.ndarray  # (n, 6) float32
+    length: np.ndarray  # (n,) int32 control steps
+    has_start: np.ndarray  # (n,) bool: the start IK succeeded
+    q_start: np.ndarray  # (n, nf) float32 start of the free joints (meaningful where has_start)
+    compile_seconds: float
+    chunk: int
+
+
+def sample_edges(
+    reach: ReachResult, config: BundleConfig, robot: Robot, progress: Progress | None = None
+) -> EdgeSamples:
+    """Sample n edges (cell, point, target, twist, duration) and solve their starts."""
     failure = reach.failure
-    device = device_description()
-    t_start = time.perf_counter()
     n = config.n_edges()
     rng = np.random.default_rng(config.seed)
     free = failure.free(robot.nq)
@@ -175,7 +185,6 @@ def build_bundle(
     radius = robot.arm.site_radius[list(sites)]
     rc = reach.config
 
-    # Sampling (all from the seed).
     start = cells[rng.integers(0, len(cells), n)]
     which = rng.integers(0, len(sites), n).astype(np.int32)
     xy = np.stack([reach.xs[start[:, 1]], reach.ys[start[:, 0]]], axis=1) + rng.uniform(-0.5, 0.5, (n, 2)) * rc.cell
@@ -193,8 +202,6 @@ def build_bundle(
     length = np.clip(np.round(duration / config.dt), 1, config.steps).astype(np.int32)
 
     chunk = config.chunk or (1 << 17 if backend() != "cpu" else 512)
-    bar = Progress(total=n * (m + 1), desc=f"edges {failure.spec}: start IK", enabled=progress, unit="item")
-
     # Starts: position-only IK for the sampled point, M restarts each.
     ik = IKBatch(
         robot,
@@ -208,28 +215,58 @@ def build_bundle(
         np.repeat(which, m),
         np.zeros(n * m, bool),
         q0.reshape(n * m, nf),
-        progress=bar.update,
+        progress=progress.update if progress else None,
     )
     ok = res["ok"].reshape(n, m)
-    has_start = ok.any(axis=1)
     first = np.argmax(ok, axis=1)
-    q_start = res["q"].reshape(n, m, -1)[np.arange(n), first][:, list(free)]
+    q_start = res["q"].reshape(n, m, -1)[np.arange(n), first][:, list(free)].astype(np.float32)
+    return EdgeSamples(sites, start, which, twist, length, ok.any(axis=1), q_start, ik.compile_seconds, chunk)
 
-    # Rollouts of the edges with a start.
+
+def roll_out(
+    robot: Robot, failure: Failure, samples: EdgeSamples, config: BundleConfig, progress: Progress | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray], ChunkedKernel]:
+    """Roll out the sampled edges that have a start; returns their indices (sampling order),
+    the kernel's per-edge results in that order, and the kernel (for its timings)."""
+    idx = np.nonzero(samples.has_start)[0]
+    # Longest first, so that each chunk's loop stops with edges of about its own length.
+    idx = idx[np.argsort(-samples.length[idx], kind="stable")]
+    roll_chunk = min(samples.chunk, max(1024, -(-len(idx) // 1024) * 1024))
+    kernel = _rollout_kernel(robot, failure, samples.sites, config.rollout_settings(), roll_chunk)
+    out = kernel.run(
+        samples.which[idx],
+        samples.q_start[idx],
+        samples.twist[idx],
+        samples.length[idx],
+        progress=progress.update if progress else None,
+    )
+    back = np.argsort(idx, kind="stable")  # to sampling order
+    return idx[back], {k: v[back] for k, v in out.items()}, kernel
+
+
+def build_bundle(
+    reach: ReachResult, config: BundleConfig | None = None, robot: Robot | None = None, progress: bool = False
+) -> Bundle:
+    """Sample, solve and roll out the edges of `reach`'s failure."""
+    robot = robot or load_robot()
+    config = config or BundleConfig()
+    config.validate(robot)
+    failure = reach.failure
+    device = device_description()
+    t_start = time.perf_counter()
+    n = config.n_edges()
+    free = failure.free(robot.nq)
+    bar = Progress(
+        total=n * (config.ik_restarts + 1), desc=f"edges {failure.spec}: start IK", enabled=progress, unit="item"
+    )
+    samples = sample_edges(reach, config, robot, bar)
     bar.set_description(f"edges {failure.spec}: rollouts")
-    idx = np.nonzero(has_start)[0]
-    # Longest first, so that each chunk's loop stops with edges of about its own length; the
-    # edges are put back in sampling order below.
-    idx = idx[np.argsort(-length[idx], kind="stable")]
-    roll_chunk = min(chunk, max(1024, -(-len(idx) // 1024) * 1024))
-    kernel = _rollout_kernel(robot, failure, sites, config.rollout_settings(), roll_chunk)
-    out = kernel.run(which[idx], q_start[idx], twist[idx], length[idx], progress=bar.update)
+    idx, out, kernel = roll_out(robot, failure, samples, config, bar)
     bar.update(n - len(idx))
     bar.close()
+    sites, start, which, twist, length = samples.sites, samples.start, samples.which, samples.twist, samples.length
+    radius = robot.arm.site_radius[list(sites)]
 
-    back = np.argsort(idx, kind="stable")  # to sampling order
-    idx = idx[back]
-    out = {k: v[back] for k, v in out.items()}
     valid_local = out["valid"].astype(bool)
     keep = idx[valid_local]
     rejected = {IK_FAILED: int(n - len(idx))}
@@ -273,8 +310,8 @@ def build_bundle(
         index_edges=index_edges,
         sampled=n,
         rejected=rejected,
-        seconds=time.perf_counter() - t_start - ik.compile_seconds - kernel.compile_seconds,
-        compile_seconds=ik.compile_seconds + kernel.compile_seconds,
+        seconds=time.perf_counter() - t_start - samples.compile_seconds - kernel.compile_seconds,
+        compile_seconds=samples.compile_seconds + kernel.compile_seconds,
         rollout_seconds=kernel.kernel_seconds,
         edge_steps=len(idx) * config.steps,
         states_evaluated=int(np.sum(np.where(out["valid"], length[idx], out["fail_step"]) + 1)),

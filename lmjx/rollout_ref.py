@@ -41,9 +41,7 @@ def gaz_friction(phi: np.ndarray, qd: np.ndarray) -> np.ndarray:
 class ReferenceRollout:
     """Serial C MuJoCo rollouts for one failure and one point (site)."""
 
-    def __init__(
-        self, robot: Robot, failure: Failure, settings: RolloutSettings, limits: Limits | None = None
-    ) -> None:
+    def __init__(self, robot: Robot, failure: Failure, settings: RolloutSettings, limits: Limits | None = None) -> None:
         self.robot = robot
         self.limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
         self.m = robot.mj
