@@ -11,21 +11,15 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"lmjx-test-jax-{os.getuid()}"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
-import mujoco
 import numpy as np
 import pytest
-
-from lmjx.robot import load_robot
 
 
 @pytest.fixture(scope="session")
 def robot():
+    from lmjx.robot import load_robot  # imported here: tests/test_plain_reader.py imports no lmjx
+
     return load_robot()
-
-
-@pytest.fixture(scope="session")
-def mj(robot):
-    return robot.mj, mujoco.MjData(robot.mj)
 
 
 def random_configs(robot, n: int, seed: int) -> np.ndarray:

@@ -34,35 +34,6 @@ def test_round_trip(small_map):
     assert r.areas() == res.areas()
 
 
-def test_plain_h5py_by_the_documented_schema(small_map, robot):
-    """Read the file the way maps/README.md tells a non-Python user to (no lmjx calls)."""
-    _res, path = small_map
-    with h5py.File(path, "r") as f:
-        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 1
-        labels = f["reach/labels_smooth"][...]
-        cell = float(f["reach"].attrs["cell"])
-        pm_area = np.sum(labels == 2) * cell**2
-        npm_area = np.sum(labels >= 1) * cell**2
-        assert pm_area == pytest.approx(float(f["reach"].attrs["area_pm_m2"]))
-        assert npm_area == pytest.approx(float(f["reach"].attrs["area_npm_pm_m2"]))
-        x, y = f["reach/x"][...], f["reach/y"][...]
-        iy, ix = np.argwhere(labels == 2)[0]
-        q = f["reach/q"][iy, ix]
-        site = f["robot/site_names"][f["reach/site"][iy, ix]].decode()
-        assert site == "tcp"
-        mjcf = f["robot/mjcf"][()].decode()
-        assert "lmjx_panda" in mjcf
-        assert list(f.attrs["locked_joints"]) == [3, 5, 7]
-    # The stored solution places the TCP on the stored target (checked with the model text).
-    import mujoco
-
-    m = mujoco.MjModel.from_xml_string(mjcf)
-    d = mujoco.MjData(m)
-    d.qpos[:] = q
-    mujoco.mj_kinematics(m, d)
-    assert np.linalg.norm(d.site_xpos[m.site("tcp").id][:2] - [x[ix], y[iy]]) <= cell / 2 * np.sqrt(2) + 0.002
-
-
 def test_validation_errors(small_map, tmp_path):
     _res, path = small_map
     with pytest.raises(MapFileError, match="does not exist"):
@@ -133,40 +104,6 @@ def test_same_command_same_seed_identical_datasets(built_maps):
         assert same, k
     assert {k: str(v) for k, v in aa.items()} == {k: str(v) for k, v in ab.items()}
     # (another seed gives other edges: tests/test_bundle.py)
-
-
-def test_reconstruct_an_edge_with_plain_h5py(built_maps):
-    """Following maps/README.md only: find the edges over a cell, slice one out, and check it
-    against the stored model with MuJoCo's own FK."""
-    import mujoco
-
-    path = built_maps[0]
-    with h5py.File(path, "r") as f:
-        e = f["edges"]
-        off, ln = e["offset"][...], e["length"][...]
-        assert f.attrs["contents"] == "reach+edges"
-        nx = int(e["index"].attrs["nx"])
-        io, ie = e["index/offset"][...], e["index/edges"][...]
-        c = int(np.argmax(np.diff(io)))  # the busiest cell
-        edge = int(ie[io[c]])
-        iy, ix = divmod(c, nx)
-        rows = slice(int(off[edge]), int(off[edge] + ln[edge]))
-        q, qd, p = e["q"][rows], e["qd"][rows], e["p"][rows]
-        dt = float(e.attrs["dt"])
-        site = f["robot/site_names"][e["site"][edge]].decode()
-        twist = e["twist"][edge]
-        mjcf = f["robot/mjcf"][()].decode()
-        x, y = f["reach/x"][ix], f["reach/y"][iy]
-        cell = float(f["reach"].attrs["cell"])
-    assert len(q) == ln[edge] >= 2 and twist.shape == (6,)
-    np.testing.assert_allclose(q[1:], q[:-1] + qd[:-1] * dt, atol=1e-5)  # the integration rule
-    m = mujoco.MjModel.from_xml_string(mjcf)
-    d = mujoco.MjData(m)
-    for qi, pi in zip(q, p, strict=True):
-        d.qpos[:] = qi
-        mujoco.mj_kinematics(m, d)
-        np.testing.assert_allclose(d.site_xpos[m.site(site).id], pi, atol=1e-5)
-    assert np.min(np.hypot(p[:, 0] - x, p[:, 1] - y)) <= cell  # it does pass by that cell
 
 
 def test_load_map_with_edges(built_maps):

@@ -1,0 +1,81 @@
+"""Reading a built map the way maps/README.md tells a user of plain h5py, MATLAB or C++ to:
+this module imports no lmjx; the map is built by the `lmjx` command in a subprocess."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import h5py
+import mujoco
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def map_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plain") / "case2.h5"
+    r = subprocess.run(
+        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "400", "--cell", "0.05",
+         "--seed", "2", "--out", str(path)],
+        capture_output=True, text=True, timeout=900, env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    return path
+
+
+def test_reach_map_by_the_schema(map_file):
+    with h5py.File(map_file, "r") as f:
+        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 1
+        assert f.attrs["contents"] == "reach+edges" and f.attrs["failure"] == "case2"
+        assert list(f.attrs["locked_joints"]) == [6, 7]
+        g = f["reach"]
+        cell = float(g.attrs["cell"])
+        lab = g["labels_smooth"][...]
+        assert np.sum(lab == 2) * cell**2 == pytest.approx(float(g.attrs["area_pm_m2"]))
+        assert np.sum(lab >= 1) * cell**2 == pytest.approx(float(g.attrs["area_npm_pm_m2"]))
+        iy, ix = np.argwhere(g["labels"][...] >= 1)[0]
+        q = g["q"][iy, ix]
+        site = f["robot/site_names"][g["site"][iy, ix]].decode()
+        x, y, zlo, zhi = g["target"][iy, ix]
+        mjcf = f["robot/mjcf"][()].decode()
+    m = mujoco.MjModel.from_xml_string(mjcf)
+    d = mujoco.MjData(m)
+    d.qpos[:] = q
+    mujoco.mj_forward(m, d)
+    p = d.site_xpos[m.site(site).id]
+    assert np.hypot(p[0] - x, p[1] - y) <= 0.002 + 1e-6 and zlo - 0.002 <= p[2] <= zhi + 0.002
+    assert d.ncon == 0
+
+
+def test_reconstruct_an_edge(map_file):
+    """Find the edges over a cell with the spatial index, slice one out of the flat arrays,
+    and check it against the stored model with MuJoCo's own FK."""
+    with h5py.File(map_file, "r") as f:
+        e = f["edges"]
+        off, ln = e["offset"][...], e["length"][...]
+        nx = int(e["index"].attrs["nx"])
+        io, ie = e["index/offset"][...], e["index/edges"][...]
+        c = int(np.argmax(np.diff(io)))  # the busiest cell
+        edge = int(ie[io[c]])
+        iy, ix = divmod(c, nx)
+        rows = slice(int(off[edge]), int(off[edge] + ln[edge]))
+        q, qd, p = e["q"][rows], e["qd"][rows], e["p"][rows]
+        dt = float(e.attrs["dt"])
+        site = f["robot/site_names"][e["site"][edge]].decode()
+        twist = e["twist"][edge]
+        mjcf = f["robot/mjcf"][()].decode()
+        x, y = f["reach/x"][ix], f["reach/y"][iy]
+        cell = float(f["reach"].attrs["cell"])
+        assert int(e.attrs["edges_valid"]) == len(off)
+    assert len(q) == ln[edge] >= 2 and twist.shape == (6,)
+    np.testing.assert_allclose(q[1:], q[:-1] + qd[:-1] * dt, atol=1e-5)  # the integration rule
+    m = mujoco.MjModel.from_xml_string(mjcf)
+    d = mujoco.MjData(m)
+    for qi, pi in zip(q, p, strict=True):
+        d.qpos[:] = qi
+        mujoco.mj_forward(m, d)
+        np.testing.assert_allclose(d.site_xpos[m.site(site).id], pi, atol=1e-5)
+        assert d.ncon == 0
+    assert np.min(np.hypot(p[:, 0] - x, p[:, 1] - y)) <= cell  # it does pass by that cell
