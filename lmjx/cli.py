@@ -120,6 +120,48 @@ def build_parser() -> argparse.ArgumentParser:
     _add_device(p)
 
     p = sub.add_parser(
+        "plan",
+        help="one manipulation task with simulation in the loop (paper Algorithm 3)",
+        description="Push the target cube of a scenario into its goal region using the edges of a map, choosing "
+        "each action with an action selection mechanism (random, lazy or greedy) and executing it in a simulated "
+        "'real' world whose physics differ from the planner's.",
+    )
+    p.add_argument("--map", required=True, help="a map file from lmjx build-map")
+    p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
+    p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
+    p.add_argument("--failure", help="refuse the map unless it was built for this failure")
+    p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
+    p.add_argument("--max-actions", type=_positive_int, default=20, help="action budget (default 20)")
+    p.add_argument(
+        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
+    )
+    p.add_argument("--render", help="write a rendering of the trial: .png (frame strip), .gif or .mp4")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
+        "evaluate",
+        help="trials over failures x scenarios x ASMs, with a report",
+        description="Run the paper's evaluation: for each failure, scenario and action selection mechanism, "
+        "--trials tasks (the same layouts and 'real'-world perturbations for every ASM and failure).  Writes "
+        "results.json after every trial (a rerun continues where it stopped), then report.md, bubble.png and "
+        "actions.png.  Maps come from --maps/<failure>.h5 (lmjx build-map).",
+    )
+    p.add_argument("--failures", default="case1,case2", help="comma separated (default case1,case2)")
+    p.add_argument("--scenarios", default="1,2,3", help="comma separated (default 1,2,3)")
+    p.add_argument("--asms", default="random,lazy,greedy", help="comma separated (default random,lazy,greedy)")
+    p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
+    p.add_argument("--maps", default="maps", help="folder of <failure>.h5 map files (default maps)")
+    p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
+    p.add_argument("--max-actions", type=_positive_int, default=20, help="action budget per task (default 20)")
+    p.add_argument(
+        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
+    )
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
         "lock-search",
         help="Reach-Ability areas over a grid of lock angles",
         description="For the given locked joints, compute a full Reach-Ability map at every combination of lock "
@@ -422,6 +464,117 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _planner_config(args: argparse.Namespace, asm: str):
+    from .batching import backend
+    from .planner import PlannerConfig
+
+    on_gpu = backend() != "cpu"
+    return PlannerConfig(
+        asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or (256 if on_gpu else 32)
+    )
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from .errors import ConfigError
+    from .failure import parse_failure
+    from .fileio import check_writable
+    from .mapfile import load_map
+    from .robot import load_robot
+    from .trial import run_trial, setup_trial
+
+    robot = load_robot()
+    m = load_map(args.map, robot)
+    if args.failure is not None and parse_failure(args.failure, robot).locked != m.failure.locked:
+        raise ConfigError(f"{args.map} holds a map of failure {m.failure.spec}, not {args.failure}")
+    if m.edges is None:
+        raise ConfigError(f"{args.map} has no edges; build it with: lmjx build-map --failure {m.failure.spec}")
+    if args.render:
+        from .render import check_render_path
+
+        check_render_path(args.render)
+        check_writable(args.render, "rendering")
+    config = _planner_config(args, args.asm)
+    setup = setup_trial(robot, m, args.scenario, config, args.seed)
+    recorder = None
+    if args.render:
+        from .render import Recorder
+
+        recorder = Recorder(setup.world)
+    res = run_trial(setup)
+    if recorder is not None:
+        recorder.write(args.render)
+    summary = {
+        "failure": m.failure.spec,
+        "scenario": args.scenario,
+        "asm": args.asm,
+        "seed": args.seed,
+        **res.summary(),
+        "steps": [
+            {
+                "edge": s.edge,
+                "candidates": s.candidates,
+                "simulated": s.simulated,
+                "distance_after_m": round(s.distance_after, 4),
+                "planning_s": round(s.planning_s, 3),
+            }
+            for s in res.steps
+        ],
+    }
+    lines = [
+        f"failure {m.failure.spec}, scenario {args.scenario}, {args.asm}, seed {args.seed}: "
+        f"{'success' if res.success else 'failure'} ({res.reason}) after {res.actions} actions",
+        f"  planning {res.planning_s:.1f} s, execution {res.execution_s:.1f} s, "
+        f"target {res.final_distance * 100:.1f} cm from the goal's centre",
+    ]
+    if args.render:
+        lines.append(f"  rendering written to {args.render}")
+    _emit(args, summary, lines)
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .batching import backend, device_description
+    from .errors import ConfigError
+    from .evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, summarize
+    from .fileio import check_writable, write_text_atomic
+    from .robot import load_robot
+
+    def split(text: str, cast=str):
+        try:
+            return tuple(cast(x.strip()) for x in text.split(",") if x.strip())
+        except ValueError:
+            raise ConfigError(f"cannot read the list '{text}'") from None
+
+    robot = load_robot()
+    config = EvalConfig(
+        failures=split(args.failures),
+        scenarios=split(args.scenarios, int),
+        asms=split(args.asms),
+        trials=args.trials,
+        seed=args.seed,
+        planner=_planner_config(args, "greedy"),
+        backend="mjx" if backend() != "cpu" else "cpu",
+    )
+    config.validate()
+    out = Path(args.out)
+    check_writable(out / "results.json", "results")
+    maps = load_maps(robot, config.failures, Path(args.maps))
+    records = evaluate(robot, maps, config, out)
+    write_text_atomic(out / "report.md", report_markdown(records, config, device_description()))
+    plots(records, out)
+    rows = summarize(records)
+    lines = [f"{len(records)} trials; results in {out}/results.json, report in {out}/report.md"]
+    lines += [
+        f"  {r['failure']} scenario {r['scenario']} {r['asm']:>6}: {r['success_rate'] * 100:5.1f} % of {r['trials']}, "
+        f"task {r['task_s_mean']:.1f} s"
+        for r in rows
+    ]
+    _emit(args, {"cells": rows, "out": str(out)}, lines)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
@@ -430,6 +583,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 COMMANDS = {
     "build-map": cmd_build_map,
+    "plan": cmd_plan,
+    "evaluate": cmd_evaluate,
     "reach": cmd_reach,
     "lock-search": cmd_lock_search,
     "info": cmd_info,

@@ -1,0 +1,117 @@
+"""The "real" world: where chosen actions are executed and the scene is observed.
+
+There is no real robot here, so `SimulatedRealWorld` runs actions in a separate MuJoCo world
+whose physics differ from the planner's simulator the way reality differs from a simulator,
+drawn per trial from its seed:
+  * object friction x U(0.7, 1.3) per object, table friction x U(0.8, 1.2);
+  * object masses x U(0.8, 1.25) per object;
+  * the robot's collision capsules U(-3, +3) mm thicker or thinner;
+  * servo tracking with Franka-like joint gains and its torque limits instead of near-exact
+    playback;
+  * object poses observed with noise: N(0, 2 mm) on x, y and N(0, 1.5 deg) on yaw.
+The planner sees only observations.  A real robot backend implements `Executor`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from .actions import Action, controls
+from .robot import Robot
+from .scenarios import Layout
+from .scene import Physics, Scene, build_scene, object_qpos, quat_yaw, read_objects, set_state
+
+
+@dataclass
+class Observation:
+    robot_q: np.ndarray  # (7,) measured joint angles
+    objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
+    time: float  # seconds of execution so far
+
+
+class Executor(Protocol):
+    def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation: ...
+
+    def execute(self, action: Action) -> Observation: ...
+
+    def truth(self) -> np.ndarray:
+        """(n, 7) true object poses (for scoring trials; a real backend returns its best estimate)."""
+        ...
+
+
+# Franka-like servo gains [Nm/rad], [Nm s/rad] (the joint impedance of libfranka's examples).
+REAL_KP = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)
+REAL_KV = (50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0)
+
+
+def real_physics(robot: Robot, n_objects: int, rng: np.random.Generator) -> Physics:
+    return Physics(
+        friction_scale=tuple(rng.uniform(0.7, 1.3, n_objects)),
+        mass_scale=tuple(rng.uniform(0.8, 1.25, n_objects)),
+        table_friction=0.5 * rng.uniform(0.8, 1.2),
+        robot_radius_offset=float(rng.uniform(-0.003, 0.003)),
+        servo_kp=REAL_KP,
+        servo_kv=REAL_KV,
+        servo_force=tuple(robot.tau_max),
+    )
+
+
+class SimulatedRealWorld:
+    """A perturbed MuJoCo world standing in for the real robot and objects."""
+
+    def __init__(self, robot: Robot, seed: int, settle: float = 0.5) -> None:
+        self.robot = robot
+        self.seed = seed
+        self.settle = settle
+        self.scene: Scene | None = None
+        self.data: mujoco.MjData | None = None
+        self.rng = np.random.default_rng(seed)
+        self.time = 0.0
+        self.pos_noise = 0.002
+        self.yaw_noise = np.deg2rad(1.5)
+        self.on_step: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None  # e.g. a recorder
+
+    def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation:
+        n = len(layout.scenario.movable)
+        self.scene = build_scene(self.robot, layout.scenario, real_physics(self.robot, n, self.rng))
+        self.data = mujoco.MjData(self.scene.model)
+        set_state(self.scene, self.data, robot_q, object_qpos(self.scene, layout.poses))
+        for _ in range(round(0.2 / self.scene.model.opt.timestep)):  # let contacts settle
+            mujoco.mj_step(self.scene.model, self.data)
+        self.time = 0.0
+        return self.observe()
+
+    def execute(self, action: Action) -> Observation:
+        assert self.scene is not None and self.data is not None, "reset first"
+        m, d = self.scene.model, self.data
+        for u in controls(action, m.opt.timestep, self.settle):
+            d.ctrl[:] = u
+            mujoco.mj_step(m, d)
+            if self.on_step is not None:
+                self.on_step(m, d)
+        self.time += action.duration + self.settle
+        return self.observe()
+
+    def truth(self) -> np.ndarray:
+        assert self.scene is not None and self.data is not None
+        return read_objects(self.scene, self.data)
+
+    def observe(self) -> Observation:
+        assert self.scene is not None and self.data is not None
+        true = self.truth()
+        est = true.copy()
+        est[:, :2] += self.rng.normal(0.0, self.pos_noise, (len(true), 2))
+        yaw = quat_yaw(true[:, 3:]) + self.rng.normal(0.0, self.yaw_noise, len(true))
+        # the planner re-places what it sees at rest on the table, upright
+        est[:, 2] = [b.zc for b in self.scene.scenario.movable]
+        est[:, 3] = np.cos(yaw / 2)
+        est[:, 4:6] = 0.0
+        est[:, 6] = np.sin(yaw / 2)
+        upright = np.abs(true[:, 2] - est[:, 2]) < 0.01
+        est[~upright, 2] = true[~upright, 2]  # a fallen or lifted object is seen where it is
+        return Observation(self.data.qpos[self.scene.robot_qpos].copy(), est, self.time)

@@ -1,0 +1,207 @@
+"""The three evaluation scenarios of the paper (Section IV), as data.
+
+All take place on the robot's table in front of it, inside the area that both failure cases
+can reach (see the Reach-Ability maps): a yellow 5 cm target cube must end in a green goal
+region.
+  1. the target and 3 movable obstacles that crowd it;
+  2. a fixed tunnel partitioning the table: the target must pass through it;
+  3. the target and 11 movable obstacles (many object-object interactions).
+`sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
+uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of its nominal pose,
+keeping objects apart.  Nothing here simulates; `lmjx.scene` builds the MuJoCo models.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ConfigError
+
+CUBE = (0.025, 0.025, 0.025)
+TARGET_RGBA = (1.0, 0.8, 0.05, 1.0)
+OBSTACLE_RGBA = (0.93, 0.93, 0.9, 1.0)
+FIXED_RGBA = (0.45, 0.45, 0.5, 1.0)
+GOAL_RGBA = (0.1, 0.8, 0.2, 0.45)
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box on the table: half extents, nominal pose of its centre (x, y, yaw), mass."""
+
+    name: str
+    half: tuple[float, float, float]
+    x: float
+    y: float
+    yaw: float = 0.0
+    mass: float = 0.1  # [kg]
+    movable: bool = True
+    rgba: tuple[float, float, float, float] = OBSTACLE_RGBA
+    z: float | None = None  # centre height; default: resting on the table
+
+    @property
+    def zc(self) -> float:
+        return self.half[2] if self.z is None else self.z
+
+
+@dataclass(frozen=True)
+class Scenario:
+    number: int
+    title: str
+    description: str
+    target: Box
+    obstacles: tuple[Box, ...]  # movable
+    fixed: tuple[Box, ...] = ()  # static (tunnel)
+    goal_center: tuple[float, float] = (0.45, -0.2)
+    goal_half: tuple[float, float] = (0.06, 0.06)
+    jitter: float = 0.02  # [m]
+    yaw_jitter: float = 0.26  # [rad]
+
+    @property
+    def movable(self) -> tuple[Box, ...]:
+        """Target first, then the movable obstacles."""
+        return (self.target, *self.obstacles)
+
+
+@dataclass
+class Layout:
+    """Initial poses of a scenario's movable objects for one trial (target first)."""
+
+    scenario: Scenario
+    seed: int
+    poses: np.ndarray = field(repr=False)  # (n, 3) x, y, yaw
+
+
+def _target(x: float, y: float) -> Box:
+    return Box("target", CUBE, x, y, mass=0.1, rgba=TARGET_RGBA)
+
+
+def _scenario1() -> Scenario:
+    t = (0.45, 0.18)
+    return Scenario(
+        1,
+        "clutter around the target",
+        "The target cube with three movable boxes crowding it on three sides; the goal lies across the table.",
+        _target(*t),
+        (
+            Box("obstacle1", (0.03, 0.03, 0.03), t[0] + 0.075, t[1] + 0.01, mass=0.15),
+            Box("obstacle2", (0.025, 0.04, 0.03), t[0] - 0.07, t[1] + 0.02, mass=0.15),
+            Box("obstacle3", (0.04, 0.025, 0.03), t[0] + 0.01, t[1] + 0.08, mass=0.15),
+        ),
+        goal_center=(0.47, -0.16),
+    )
+
+
+def _scenario2() -> Scenario:
+    # A wall along x at y = 0 with one opening, roofed: a tunnel the cube fits through and
+    # the arm does not.
+    wall_h = 0.06  # half height: 12 cm tall
+    gap_lo, gap_hi = 0.40, 0.54  # the opening along x
+    roof_z = 0.09  # underside of the roof
+    walls = (
+        Box("wall_near", ((gap_lo - 0.14) / 2, 0.02, wall_h), (0.14 + gap_lo) / 2, 0.0, movable=False, rgba=FIXED_RGBA),
+        Box("wall_far", ((0.90 - gap_hi) / 2, 0.02, wall_h), (gap_hi + 0.90) / 2, 0.0, movable=False, rgba=FIXED_RGBA),
+        Box(
+            "roof",
+            ((gap_hi - gap_lo) / 2, 0.02, 0.015),
+            (gap_lo + gap_hi) / 2,
+            0.0,
+            movable=False,
+            rgba=FIXED_RGBA,
+            z=roof_z + 0.015,
+        ),
+    )
+    return Scenario(
+        2,
+        "tunnel",
+        "A fixed wall across the table with a roofed opening (a tunnel 14 cm wide, 9 cm high, "
+        "4 cm long); the target starts on one side and its goal is on the other.",
+        _target(0.47, 0.13),
+        (),
+        fixed=walls,
+        goal_center=(0.47, -0.14),
+    )
+
+
+def _scenario3() -> Scenario:
+    t = (0.42, 0.20)
+    spots = [
+        (0.33, 0.26), (0.42, 0.30), (0.52, 0.27), (0.33, 0.15), (0.53, 0.16), (0.38, 0.07),
+        (0.49, 0.06), (0.30, -0.02), (0.43, -0.04), (0.58, -0.03), (0.62, 0.10),
+    ]  # fmt: skip
+    sizes = [(0.025, 0.025, 0.025), (0.03, 0.02, 0.025), (0.02, 0.03, 0.025)]
+    obstacles = tuple(
+        Box(f"obstacle{i + 1}", sizes[i % 3], x, y, yaw=0.4 * (i % 4), mass=0.08) for i, (x, y) in enumerate(spots)
+    )
+    return Scenario(
+        3,
+        "eleven obstacles",
+        "The target cube among eleven movable boxes scattered between it and the goal.",
+        _target(*t),
+        obstacles,
+        goal_center=(0.46, -0.18),
+    )
+
+
+SCENARIOS = {1: _scenario1, 2: _scenario2, 3: _scenario3}
+
+
+def scenario(number: int) -> Scenario:
+    if number not in SCENARIOS:
+        raise ConfigError(f"unknown scenario {number}; the scenarios are 1, 2 and 3")
+    return SCENARIOS[number]()
+
+
+def _corners(half: tuple[float, float, float], x: float, y: float, yaw: float, grow: float) -> np.ndarray:
+    hx, hy = half[0] + grow, half[1] + grow
+    c, s = math.cos(yaw), math.sin(yaw)
+    local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
+    return local @ np.array([[c, s], [-s, c]]) + [x, y]
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two convex polygons (4, 2) overlap (separating axis test)."""
+    for poly in (a, b):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            axis = np.array([-edge[1], edge[0]])
+            pa, pb = a @ axis, b @ axis
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True
+
+
+def sample_layout(sc: Scenario, seed: int, tries: int = 200) -> Layout:
+    """Seeded initial poses: each movable object jittered around its nominal pose, without
+    overlaps (bounding circles) with the other objects and the fixed ones."""
+    rng = np.random.default_rng(seed)
+    boxes = sc.movable
+    for _ in range(tries):
+        d = rng.uniform(-sc.jitter, sc.jitter, (len(boxes), 2))
+        yaw = rng.uniform(-sc.yaw_jitter, sc.yaw_jitter, len(boxes))
+        poses = np.array([[b.x + dx, b.y + dy, b.yaw + w] for b, (dx, dy), w in zip(boxes, d, yaw, strict=True)])
+        if _separated(boxes, poses, sc.fixed):
+            return Layout(sc, seed, poses)
+    raise ConfigError(f"scenario {sc.number}: could not place the objects apart (seed {seed})")
+
+
+def _separated(boxes: tuple[Box, ...], poses: np.ndarray, fixed: tuple[Box, ...], gap: float = 0.004) -> bool:
+    """No two footprints (grown by gap / 2 each) overlap, nor any with a fixed obstacle on the table."""
+    polys = [_corners(b.half, *p, gap / 2) for b, p in zip(boxes, poses, strict=True)]
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            if _overlap(polys[i], polys[j]):
+                return False
+        for f in fixed:
+            if f.zc - f.half[2] > boxes[i].half[2] * 2:
+                continue  # above the object (the roof)
+            if _overlap(polys[i], _corners(f.half, f.x, f.y, f.yaw, gap / 2)):
+                return False
+    return True
+
+
+def in_goal(sc: Scenario, xy: np.ndarray) -> bool:
+    """Whether a point (the target's centre) lies in the goal region."""
+    return bool(abs(xy[0] - sc.goal_center[0]) <= sc.goal_half[0] and abs(xy[1] - sc.goal_center[1]) <= sc.goal_half[1])

@@ -1,0 +1,172 @@
+"""Scenarios, the simulated "real" world, actions and the planner (Algorithm 3)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+
+from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
+from lmjx.executor import SimulatedRealWorld, real_physics
+from lmjx.failure import parse_failure
+from lmjx.mapfile import load_map
+from lmjx.planner import PlannerConfig, score
+from lmjx.scenarios import in_goal, sample_layout, scenario
+from lmjx.scene import build_scene, object_qpos, read_objects, set_state
+from lmjx.simulate import CpuSimulator
+from lmjx.trial import run_trial, setup_trial
+
+ENV = {**os.environ, "JAX_PLATFORMS": "cpu"}
+
+
+@pytest.fixture(scope="module")
+def small_map(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plan") / "case2.h5"
+    r = subprocess.run(
+        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "3000", "--cell", "0.05",
+         "--seed", "1", "--out", str(path)],
+        capture_output=True, text=True, timeout=900, env=ENV,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    return path
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_layouts_are_seeded_and_apart(robot, n):
+    sc = scenario(n)
+    a, b, c = sample_layout(sc, 5), sample_layout(sc, 5), sample_layout(sc, 6)
+    assert np.array_equal(a.poses, b.poses) and not np.array_equal(a.poses, c.poses)
+    assert len(a.poses) == {1: 4, 2: 1, 3: 12}[n]
+    nominal = np.array([[o.x, o.y, o.yaw] for o in sc.movable])
+    assert np.all(np.abs(a.poses[:, :2] - nominal[:, :2]) <= sc.jitter + 1e-12)
+    # at rest in the scene: nothing moves, nothing overlaps
+    s = build_scene(robot, sc)
+    d = mujoco.MjData(s.model)
+    set_state(s, d, park_pose(robot, parse_failure("case2", robot)), object_qpos(s, a.poses))
+    for _ in range(400):
+        mujoco.mj_step(s.model, d)
+    assert np.abs(read_objects(s, d)[:, :3] - object_qpos(s, a.poses)[:, :3]).max() < 1e-3
+    assert not in_goal(sc, a.poses[0, :2])
+
+
+def test_real_world_differs_from_the_planners_within_documented_ranges(robot):
+    rng = np.random.default_rng(3)
+    p = real_physics(robot, 4, rng)
+    assert all(0.7 <= f <= 1.3 for f in p.friction_scale) and all(0.8 <= m <= 1.25 for m in p.mass_scale)
+    assert -0.003 <= p.robot_radius_offset <= 0.003 and p.servo_force == tuple(robot.tau_max)
+    sc = scenario(1)
+    lay = sample_layout(sc, 1)
+    w1, w2 = SimulatedRealWorld(robot, 1), SimulatedRealWorld(robot, 1)
+    q = park_pose(robot, parse_failure("case2", robot))
+    o1, o2 = w1.reset(lay, q), w2.reset(lay, q)
+    assert np.array_equal(o1.objects, o2.objects)  # seeded: the same noise
+    err = o1.objects[:, :2] - w1.truth()[:, :2]
+    assert 0 < np.abs(err).max() < 0.01  # observed with noise
+    assert w1.scene.model.geom("target_geom").friction[0] != pytest.approx(0.5)  # perturbed
+
+
+def test_controls_follow_the_action(robot, small_map):
+    m = load_map(small_map)
+    tp = TransitPlanner(robot, m.failure)
+    a = None
+    for e in range(m.edges.n_edges):
+        a = tp.action(m.edges, e, tp.park)
+        if a is not None:
+            break
+    assert a is not None
+    assert np.allclose(a.q[a.transit_steps :], m.edges.edge(a.edge)["q"])
+    u = controls(a, 0.005, 0.5)
+    assert len(u) == len(a.q) * round(CONTROL_DT / 0.005) + 100
+    np.testing.assert_allclose(u[round(CONTROL_DT / 0.005) - 1, :7], a.q[0], atol=1e-12)
+    np.testing.assert_allclose(u[-1, :7], a.q[-1])
+    # the planner's servos play the action back closely (objects moved out of the way)
+    sc = scenario(1)
+    s = build_scene(robot, sc)
+    d = mujoco.MjData(s.model)
+    far = np.array([[1.0, -0.9 + 0.1 * i, 0.0] for i in range(len(sc.movable))])
+    set_state(s, d, tp.park, object_qpos(s, far))
+    worst = 0.0
+    sub = round(CONTROL_DT / 0.005)
+    for k, ui in enumerate(u[: len(a.q) * sub]):
+        d.ctrl[:] = ui
+        mujoco.mj_step(s.model, d)
+        if (k + 1) % sub == 0:
+            worst = max(worst, np.abs(d.qpos[s.robot_qpos] - a.q[(k + 1) // sub - 1]).max())
+    assert worst < 0.02  # rad; largest where the transit's velocity meets the edge's
+
+
+def test_batched_simulation_equals_one_by_one(robot, small_map):
+    m = load_map(small_map)
+    tp = TransitPlanner(robot, m.failure)
+    acts = [a for a in (tp.action(m.edges, e, tp.park) for e in range(0, 60, 3)) if a is not None][:6]
+    sc = scenario(1)
+    s = build_scene(robot, sc)
+    sim = CpuSimulator(s)
+    objs = object_qpos(s, sample_layout(sc, 2).poses)
+    batch = sim.simulate(tp.park, objs, acts)
+    single = np.concatenate([sim.simulate(tp.park, objs, [a]) for a in acts])
+    np.testing.assert_allclose(batch, single, atol=1e-9)
+    assert batch.shape == (len(acts), 4, 7)
+    assert np.all(score(sc, robot, batch) < 1.0)  # nobody fell off the table
+
+
+@pytest.mark.parametrize("asm", ["random", "lazy", "greedy"])
+def test_trials_run_and_repeat(robot, small_map, asm):
+    m = load_map(small_map)
+    cfg = PlannerConfig(asm=asm, max_actions=3, greedy_candidates=8, lazy_tries=4)
+    a = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
+    b = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
+    assert a.summary() | {"planning_s": 0} == b.summary() | {"planning_s": 0}
+    assert 1 <= a.actions <= 3 and a.execution_s > 0
+    sims = [s.simulated for s in a.steps]
+    if asm == "random":
+        assert sims == [0] * len(sims)
+    elif asm == "lazy":
+        assert all(1 <= n <= 4 for n in sims)
+    else:
+        assert all(n == 8 for n in sims)
+
+
+def test_plan_and_evaluate_cli(small_map, tmp_path):
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "lmjx.cli", *args], capture_output=True, text=True, env=ENV,
+                              timeout=900)  # fmt: skip
+
+    r = run("plan", "--map", str(small_map), "--scenario", "2", "--asm", "greedy", "--candidates", "8",
+            "--max-actions", "2", "--json")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert {"success", "actions", "planning_s", "execution_s"} <= set(out)
+    for args, message in (
+        (("plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
+        (("plan", "--map", str(tmp_path / "none.h5"), "--scenario", "1", "--asm", "lazy"), "does not exist"),
+        (("plan", "--map", str(small_map), "--scenario", "4", "--asm", "lazy"), "invalid choice"),
+        (("plan", "--map", str(small_map), "--scenario", "1", "--asm", "clever"), "invalid choice"),
+        (("evaluate", "--maps", str(tmp_path), "--out", str(tmp_path / "e")), "does not exist"),
+        (("evaluate", "--asms", "smart", "--out", str(tmp_path / "e")), "unknown ASM"),
+    ):
+        r = run(*args)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    (maps / "case2.h5").write_bytes(small_map.read_bytes())
+    ev = tmp_path / "eval"
+    args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random,greedy", "--trials", "2",
+            "--max-actions", "2", "--candidates", "4", "--maps", str(maps), "--out", str(ev))  # fmt: skip
+    r = run(*args)
+    assert r.returncode == 0, r.stderr
+    records = json.loads((ev / "results.json").read_text())
+    assert len(records) == 4
+    assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s"}
+    assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
+    r = run(*args)  # resumes: nothing left to do
+    assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
+    # the same trials face the same layouts whatever the ASM
+    assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
+        {x["seed"] for x in records if x["asm"] == "greedy"}
+    )
