@@ -60,11 +60,15 @@ class TransitPlanner:
         t = max(float(np.max(np.abs(dq) / self.speed)), 2 * CONTROL_DT)
         n = int(np.ceil(t / CONTROL_DT))
         path = q0 + np.outer(np.arange(1, n + 1) / n, dq)
-        # check at least every 0.02 rad of the largest joint motion
+        # check at least every 0.02 rad of the largest joint motion; a start already in contact
+        # (the real arm pressed against the table) may move out of it, but not back in
         fine = max(n, int(np.ceil(np.max(np.abs(dq)) / 0.02)))
+        leaving = self.colliding(q0)
         for s in np.arange(1, fine + 1) / fine:
-            if self.colliding(q0 + s * dq):
+            hit = self.colliding(q0 + s * dq)
+            if hit and not leaving:
                 return None
+            leaving = leaving and hit
         return path
 
     def action(self, bundle: Bundle, edge: int, q_now: np.ndarray) -> Action | None:

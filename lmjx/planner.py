@@ -47,6 +47,7 @@ class PlannerConfig:
     lazy_tries: int = 32
     min_progress: float = 0.005  # "moved toward the goal": the distance drops by at least this [m]
     target_margin: float = 0.01  # edges over cells within the target's half size + this [m]
+    goal_margin: float = 0.01  # stop once the observed target is this far inside the goal region [m]
 
     def validate(self) -> None:
         if self.asm not in ASMS:
@@ -205,7 +206,7 @@ class Planner:
         planning = 0.0
         reason = "budget"
         for _ in range(cfg.max_actions):
-            if in_goal(self.sc, obs.objects[0, :2]):
+            if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"
                 break
             if planning > cfg.max_planning_s:
@@ -225,7 +226,7 @@ class Planner:
             rec.distance_after = float(goal_distance(self.sc, obs.objects[0, :2]))
             steps.append(rec)
         else:
-            if in_goal(self.sc, obs.objects[0, :2]):
+            if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"
         truth = executor.truth()
         success = in_goal(self.sc, truth[0, :2]) and truth[0, 2] > -0.02

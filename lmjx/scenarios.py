@@ -202,6 +202,9 @@ def _separated(boxes: tuple[Box, ...], poses: np.ndarray, fixed: tuple[Box, ...]
     return True
 
 
-def in_goal(sc: Scenario, xy: np.ndarray) -> bool:
-    """Whether a point (the target's centre) lies in the goal region."""
-    return bool(abs(xy[0] - sc.goal_center[0]) <= sc.goal_half[0] and abs(xy[1] - sc.goal_center[1]) <= sc.goal_half[1])
+def in_goal(sc: Scenario, xy: np.ndarray, margin: float = 0.0) -> bool:
+    """Whether a point (the target's centre) lies in the goal region, at least `margin` inside."""
+    return bool(
+        abs(xy[0] - sc.goal_center[0]) <= sc.goal_half[0] - margin
+        and abs(xy[1] - sc.goal_center[1]) <= sc.goal_half[1] - margin
+    )
