@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", help="refuse the map unless it was built for this failure")
     p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
-    p.add_argument("--max-actions", type=_positive_int, default=20, help="action budget (default 20)")
+    p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget (default 30)")
     p.add_argument(
         "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
     )
@@ -153,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
     p.add_argument("--maps", default="maps", help="folder of <failure>.h5 map files (default maps)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
-    p.add_argument("--max-actions", type=_positive_int, default=20, help="action budget per task (default 20)")
+    p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget per task (default 30)")
     p.add_argument(
         "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
     )

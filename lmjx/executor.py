@@ -58,6 +58,7 @@ def real_physics(robot: Robot, n_objects: int, rng: np.random.Generator) -> Phys
         servo_kp=REAL_KP,
         servo_kv=REAL_KV,
         servo_force=tuple(robot.tau_max),
+        robot_table_contacts=True,
     )
 
 

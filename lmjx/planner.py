@@ -11,6 +11,10 @@ choose one by the action selection mechanism (ASM):
   * greedy: a uniform subset of `greedy_candidates` edges simulated in one batch; the one
             that leaves the target closest to the goal (with a penalty for every object that
             leaves the table) is taken.
+"Closest" is the path length around the fixed obstacles (`GoalField`; the plain distance
+where nothing is in the way).  An edge that was executed and did not bring the target closer
+is not offered again while the target stays where it was (the simulator was wrong about it
+once; trying it again would waste the action budget).
 Execute it in the "real" world, observe, repeat until the target is in the goal region or
 the budget (actions, planning time) is spent.  Actions whose transit would hit the table or
 the arm itself are skipped.  Everything random comes from the trial's seed.
@@ -28,6 +32,7 @@ from .bundle import Bundle
 from .errors import ConfigError
 from .executor import Executor, Observation
 from .failure import Failure
+from .goalfield import GoalField
 from .reach import ReachResult
 from .robot import Robot
 from .scenarios import Layout, Scenario, in_goal
@@ -41,13 +46,15 @@ TARGET_LOST = 10.0  # [m] when the target leaves the table
 @dataclass(frozen=True)
 class PlannerConfig:
     asm: str = "greedy"
-    max_actions: int = 20
+    max_actions: int = 30
     max_planning_s: float = 600.0
     greedy_candidates: int = 32
     lazy_tries: int = 32
     min_progress: float = 0.005  # "moved toward the goal": the distance drops by at least this [m]
     target_margin: float = 0.01  # edges over cells within the target's half size + this [m]
     goal_margin: float = 0.01  # stop once the observed target is this far inside the goal region [m]
+    futile_radius: float = 0.01  # an executed edge that made no progress is not offered again
+    # while the target stays within this distance of where it was [m]
 
     def validate(self) -> None:
         if self.asm not in ASMS:
@@ -93,15 +100,19 @@ def goal_distance(sc: Scenario, xy: np.ndarray) -> np.ndarray:
     return np.hypot(xy[..., 0] - sc.goal_center[0], xy[..., 1] - sc.goal_center[1])
 
 
-def score(sc: Scenario, robot: Robot, objects: np.ndarray) -> np.ndarray:
-    """Lower is better: the target's distance to the goal, plus penalties for objects that
-    leave the table.  objects: (..., n, 7)."""
+def table_bounds(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     arm = robot.arm
-    lo = arm.table_center[:2] - arm.table_half[:2]
-    hi = arm.table_center[:2] + arm.table_half[:2]
+    return arm.table_center[:2] - arm.table_half[:2], arm.table_center[:2] + arm.table_half[:2]
+
+
+def score(sc: Scenario, robot: Robot, objects: np.ndarray, field: GoalField | None = None) -> np.ndarray:
+    """Lower is better: the target's path length to the goal around the fixed obstacles
+    (`GoalField`), plus penalties for objects that leave the table.  objects: (..., n, 7)."""
+    lo, hi = table_bounds(robot)
+    field = field or GoalField(sc, lo, hi)
     xy = objects[..., :2]
-    off = (objects[..., 2] < arm.table_z - 0.02) | np.any((xy < lo) | (xy > hi), axis=-1)
-    s = goal_distance(sc, objects[..., 0, :2])
+    off = (objects[..., 2] < robot.arm.table_z - 0.02) | np.any((xy < lo) | (xy > hi), axis=-1)
+    s = field(objects[..., 0, :2])
     s = s + OFF_TABLE_PENALTY * off[..., 1:].sum(axis=-1)
     return np.where(off[..., 0], TARGET_LOST, s)
 
@@ -141,6 +152,10 @@ class Planner:
         self.sim = simulator
         self.config = config
         self.transits = TransitPlanner(robot, failure)
+        self.field = GoalField(sc, *table_bounds(robot))
+        # edges that were executed here and did not move the target toward the goal: target
+        # position at the time, per edge (not offered again while the target stays there)
+        self.futile: dict[int, np.ndarray] = {}
 
     def _actions(self, edges: np.ndarray, q_now: np.ndarray, want: int) -> list[Action]:
         """Up to `want` feasible actions from `edges`, in the given order."""
@@ -157,9 +172,12 @@ class Planner:
         cfg = self.config
         target = obs.objects[0, :2]
         edges = edges_over_target(self.bundle, self.reach, target, float(self.sc.target.half[0]), cfg.target_margin)
+        if self.futile:
+            keep = [e for e in edges if not self._futile_here(int(e), target)]
+            edges = np.asarray(keep, edges.dtype)
         order = rng.permutation(edges)
-        now = float(goal_distance(self.sc, target))
-        rec = StepRecord(-1, len(edges), 0, None, now, 0.0, 0.0)
+        now = float(self.field(target))
+        rec = StepRecord(-1, len(edges), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
             acts = self._actions(order, obs.robot_q, 1)
             if acts:
@@ -170,7 +188,7 @@ class Planner:
             if not acts:
                 return None, rec
             final = self.sim.simulate(obs.robot_q, obs.objects, acts)
-            s = score(self.sc, self.robot, final)
+            s = score(self.sc, self.robot, final, self.field)
             best = int(np.argmin(s))
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
@@ -186,7 +204,7 @@ class Planner:
             if not acts:
                 continue
             tried += 1
-            s = float(score(self.sc, self.robot, self.sim.simulate(obs.robot_q, obs.objects, acts))[0])
+            s = float(score(self.sc, self.robot, self.sim.simulate(obs.robot_q, obs.objects, acts), self.field)[0])
             if s < best_s:
                 best_a, best_s = acts[0], s
             if s <= now - cfg.min_progress:
@@ -197,10 +215,15 @@ class Planner:
             rec.predicted_distance = best_s
         return best_a, rec
 
+    def _futile_here(self, edge: int, target: np.ndarray) -> bool:
+        at = self.futile.get(edge)
+        return at is not None and float(np.hypot(*(target - at))) < self.config.futile_radius
+
     def run(self, executor: Executor, layout: Layout, seed: int) -> TrialResult:
         """One closed-loop trial."""
         cfg = self.config
         rng = np.random.default_rng(seed)
+        self.futile = {}
         obs = executor.reset(layout, self.transits.park)
         steps: list[StepRecord] = []
         planning = 0.0
@@ -221,7 +244,10 @@ class Planner:
                 steps.append(rec)
                 break
             t_before = obs.time
+            before = obs.objects[0, :2].copy()
             obs = executor.execute(action)
+            if float(self.field(obs.objects[0, :2])) > float(self.field(before)) - cfg.min_progress:
+                self.futile[action.edge] = before
             rec.execution_s = obs.time - t_before
             rec.distance_after = float(goal_distance(self.sc, obs.objects[0, :2]))
             steps.append(rec)

@@ -78,58 +78,61 @@ def _target(x: float, y: float) -> Box:
     return Box("target", CUBE, x, y, mass=0.1, rgba=TARGET_RGBA)
 
 
+# The task area: the table to the robot's left front, which both failure cases reach
+# (case 1 cannot reach a wedge to the right of the robot's centre line; see its map).
+GOAL = (0.46, 0.14)
+
+
 def _scenario1() -> Scenario:
-    t = (0.45, 0.18)
+    t = (0.40, 0.42)
     return Scenario(
         1,
         "clutter around the target",
-        "The target cube with three movable boxes crowding it on three sides; the goal lies across the table.",
+        "The target cube with three movable boxes crowding it on three sides; the goal lies "
+        "28 cm away toward the robot's centre line.",
         _target(*t),
         (
             Box("obstacle1", (0.03, 0.03, 0.03), t[0] + 0.075, t[1] + 0.01, mass=0.15),
             Box("obstacle2", (0.025, 0.04, 0.03), t[0] - 0.07, t[1] + 0.02, mass=0.15),
             Box("obstacle3", (0.04, 0.025, 0.03), t[0] + 0.01, t[1] + 0.08, mass=0.15),
         ),
-        goal_center=(0.47, -0.16),
+        goal_center=GOAL,
     )
 
 
 def _scenario2() -> Scenario:
-    # A wall along x at y = 0 with one opening, roofed: a tunnel the cube fits through and
-    # the arm does not.
-    wall_h = 0.06  # half height: 12 cm tall
-    gap_lo, gap_hi = 0.40, 0.54  # the opening along x
-    roof_z = 0.09  # underside of the roof
+    # A wall along x at y = 0.26 with one opening, roofed: a tunnel the cube and the hand fit
+    # through, the rest of the arm not; the goal lies just past its exit.
+    y_wall, half_t = 0.26, 0.005  # 1 cm thick
+    wall_h = 0.14  # half height: 28 cm tall
+    gap_lo, gap_hi = 0.32, 0.62  # the opening along x: 30 cm
+    roof_z = 0.25  # underside of the roof
     walls = (
-        Box("wall_near", ((gap_lo - 0.14) / 2, 0.02, wall_h), (0.14 + gap_lo) / 2, 0.0, movable=False, rgba=FIXED_RGBA),
-        Box("wall_far", ((0.90 - gap_hi) / 2, 0.02, wall_h), (gap_hi + 0.90) / 2, 0.0, movable=False, rgba=FIXED_RGBA),
-        Box(
-            "roof",
-            ((gap_hi - gap_lo) / 2, 0.02, 0.015),
-            (gap_lo + gap_hi) / 2,
-            0.0,
-            movable=False,
-            rgba=FIXED_RGBA,
-            z=roof_z + 0.015,
-        ),
-    )
+        Box("wall_near", ((gap_lo - 0.12) / 2, half_t, wall_h), (0.12 + gap_lo) / 2, y_wall, movable=False,
+            rgba=FIXED_RGBA),
+        Box("wall_far", ((0.86 - gap_hi) / 2, half_t, wall_h), (gap_hi + 0.86) / 2, y_wall, movable=False,
+            rgba=FIXED_RGBA),
+        Box("roof", ((gap_hi - gap_lo) / 2, half_t, 0.015), (gap_lo + gap_hi) / 2, y_wall, movable=False,
+            rgba=FIXED_RGBA, z=roof_z + 0.015),
+    )  # fmt: skip
     return Scenario(
         2,
         "tunnel",
-        "A fixed wall across the table with a roofed opening (a tunnel 14 cm wide, 9 cm high, "
-        "4 cm long); the target starts on one side and its goal is on the other.",
-        _target(0.47, 0.13),
+        "A fixed wall across the table with a roofed opening (a tunnel 30 cm wide and 25 cm "
+        "high through a 1 cm wall): the target starts on the far side and its goal lies on the "
+        "near side, just past the exit; no object can go around the wall.",
+        _target(0.47, 0.40),
         (),
         fixed=walls,
-        goal_center=(0.47, -0.14),
+        goal_center=(0.47, 0.17),
     )
 
 
 def _scenario3() -> Scenario:
-    t = (0.42, 0.20)
+    t = (0.40, 0.44)
     spots = [
-        (0.33, 0.26), (0.42, 0.30), (0.52, 0.27), (0.33, 0.15), (0.53, 0.16), (0.38, 0.07),
-        (0.49, 0.06), (0.30, -0.02), (0.43, -0.04), (0.58, -0.03), (0.62, 0.10),
+        (0.31, 0.50), (0.40, 0.535), (0.50, 0.50), (0.31, 0.39), (0.50, 0.40), (0.35, 0.31),
+        (0.46, 0.30), (0.57, 0.31), (0.30, 0.22), (0.58, 0.21), (0.38, 0.10),
     ]  # fmt: skip
     sizes = [(0.025, 0.025, 0.025), (0.03, 0.02, 0.025), (0.02, 0.03, 0.025)]
     obstacles = tuple(
@@ -138,10 +141,10 @@ def _scenario3() -> Scenario:
     return Scenario(
         3,
         "eleven obstacles",
-        "The target cube among eleven movable boxes scattered between it and the goal.",
+        "The target cube among eleven movable boxes scattered around it and between it and the goal.",
         _target(*t),
         obstacles,
-        goal_center=(0.46, -0.18),
+        goal_center=GOAL,
     )
 
 

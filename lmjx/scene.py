@@ -18,9 +18,13 @@ import numpy as np
 from .robot import Robot
 from .scenarios import GOAL_RGBA, Scenario
 
-ROBOT_BITS = (1, 2)  # (contype, conaffinity)
+# Contact groups (contype, conaffinity); MuJoCo lets two geoms touch when either's contype
+# meets the other's conaffinity.  The robot touches the objects and the fixed obstacles, not
+# itself; the table touches the objects, and the robot only where Physics asks for it.
+ROBOT_BITS = (1, 0)
 OBJECT_BITS = (2, 3)
 STATIC_BITS = (2, 3)
+TABLE_BITS = {True: (2, 3), False: (2, 2)}
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,12 @@ class Physics:
     servo_kv: tuple[float, ...] = (300.0,) * 7  # [Nm s/rad]
     servo_force: tuple[float, ...] | None = None  # torque limits; None: unlimited (near-exact playback)
     armature: float = 0.1  # reflected motor inertia per joint [kg m^2] (keeps stiff servos stable)
+    # The planner's arm paths are free of table contact already (edges and transits are
+    # checked); the "real" world keeps robot-table contacts.
+    robot_table_contacts: bool = False
+    table_as_plane: bool = False  # a plane instead of the table box (cheaper in MJX)
+    solver_iterations: int | None = None  # MuJoCo's constraint solver iterations (None: default)
+    max_contact_points: int | None = None  # MJX: keep the deepest contacts only
 
 
 @dataclass
@@ -76,12 +86,22 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None) -> S
     spec = mujoco.MjSpec.from_file(str(robot.path))
     robot_bodies = {robot.mj.body(b).name for b in range(1, robot.mj.nbody)}
     spec.option.timestep = physics.timestep
+    if physics.solver_iterations is not None:
+        spec.option.iterations = physics.solver_iterations
+        spec.option.ls_iterations = max(4, physics.solver_iterations)
+    if physics.max_contact_points is not None:
+        spec.add_numeric(name="max_contact_points", data=[physics.max_contact_points])
+        spec.add_numeric(name="max_geom_pairs", data=[physics.max_contact_points])
     # Contact groups: the robot touches the table, the fixed obstacles and the objects, but not
     # itself (its trajectories are already free of self-collision); objects touch everything.
     for g in spec.geoms:
         if g.name == "table":
             g.friction = [physics.table_friction, 0.005, 0.0001]
-            g.contype, g.conaffinity = STATIC_BITS
+            g.contype, g.conaffinity = TABLE_BITS[physics.robot_table_contacts]
+            if physics.table_as_plane:
+                g.type = mujoco.mjtGeom.mjGEOM_PLANE
+                g.pos = [g.pos[0], g.pos[1], 0.0]
+                g.size = [g.size[0], g.size[1], 0.05]
         elif g.type == mujoco.mjtGeom.mjGEOM_CAPSULE:
             g.friction = [physics.robot_friction, 0.005, 0.0001]
             g.contype, g.conaffinity = ROBOT_BITS
