@@ -97,6 +97,7 @@ def ik_solve(
     site: jnp.ndarray,
     pm: jnp.ndarray,
     q0_free: jnp.ndarray,
+    free_mask: jnp.ndarray | None = None,
 ) -> jnp.ndarray:
     """Solve one IK problem.
 
@@ -111,6 +112,10 @@ def ik_solve(
       site: () int, which of `sites` to place.
       pm: () bool, prehensile mode (tool cone) or position only.
       q0_free: (nf,) initial free joint angles.
+      free_mask: optional (nf,) 1.0 / 0.0 per free joint, traced: joints with 0 keep their
+        initial angle (their Jacobian columns are zeroed, so the damped step leaves them
+        exactly where they are).  With `free` = every joint this makes the set of locked
+        joints an input: one program serves every failure (the failure atlas).
     Returns:
       (nf,) free joint angles after `settings.iterations` steps.
     """
@@ -184,6 +189,9 @@ def ik_solve(
             cols = point_jacobian(tree, frames, int(arm.cap_body[group[0]]), low, free)
             w_tab = (clear < settings.table_margin).astype(dtype)
             rows.append(([col[2] for col in cols], settings.table_margin - clear, w_tab))
+
+        if free_mask is not None:
+            rows = [([mul(r, free_mask[i]) for i, r in enumerate(row)], err, w) for row, err, w in rows]
 
         # Damped normal equations over the free joints.
         lam = settings.damping + settings.damping_error * (e_pos[0] ** 2 + e_pos[1] ** 2 + e_pos[2] ** 2)

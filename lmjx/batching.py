@@ -37,7 +37,10 @@ class ChunkedKernel:
       one: the kernel for one item, `one(*shared, *per_item)`; returns a NamedTuple.
       shared: arrays passed unbatched to every item (e.g. traced lock angles).
       inputs: (dtype, trailing shape) of each per-item input.
-      chunk: items per call; batches are padded to a multiple of it.
+      chunk: items per call (per device when sharded); batches are padded to a multiple of it.
+      sharded: split every call's batch over all devices of all processes (`lmjx.sharding`);
+        each device runs the one-device program on `chunk` items, so results do not depend
+        on the number of devices.
     """
 
     def __init__(
@@ -47,10 +50,23 @@ class ChunkedKernel:
         shared: Sequence[np.ndarray],
         inputs: Sequence[tuple[type, tuple[int, ...]]],
         chunk: int,
+        sharded: bool = False,
     ) -> None:
-        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared))
+        self.sharded = sharded
+        self.mesh = None
+        if sharded:
+            from . import sharding
+
+            self.mesh = sharding.mesh()
+            chunk = chunk * sharding.device_count()
+        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded)
         self.one = one
-        self.shared = [jnp.asarray(np.asarray(a)) for a in shared]
+        if self.mesh is not None:
+            from .sharding import put_replicated
+
+            self.shared = [put_replicated(np.asarray(a), self.mesh) for a in shared]
+        else:
+            self.shared = [jnp.asarray(np.asarray(a)) for a in shared]
         self.inputs = list(inputs)
         self.chunk = chunk
         self.compile_seconds = 0.0
@@ -64,7 +80,7 @@ class ChunkedKernel:
             return
         t0 = time.perf_counter()
         # numpy dummies: a jnp.zeros of a new shape would itself compile a small program.
-        dummy = [jnp.asarray(np.zeros((self.chunk, *s), d)) for d, s in self.inputs]
+        dummy = [self._put(np.zeros((self.chunk, *s), d)) for d, s in self.inputs]
         axes = (None,) * len(self.shared) + (0,) * len(self.inputs)
         fn = jax.jit(jax.vmap(self.one, in_axes=axes))
         compiled = fn.lower(*self.shared, *dummy).compile()
@@ -72,9 +88,23 @@ class ChunkedKernel:
         # device, so that timed calls measure steady-state work.
         res = jax.block_until_ready(compiled(*self.shared, *dummy))
         self.compile_seconds = time.perf_counter() - t0
-        self._out = {k: (np.shape(v)[1:], np.asarray(v).dtype) for k, v in res._asdict().items()}
+        self._out = {k: (np.shape(v)[1:], np.dtype(v.dtype)) for k, v in res._asdict().items()}
         self._fn = compiled
         _COMPILED[self.key] = (compiled, self._out)
+
+    def _put(self, x: np.ndarray) -> jax.Array:
+        if self.mesh is None:
+            return jnp.asarray(x)
+        from .sharding import put_batch
+
+        return put_batch(x, self.mesh)
+
+    def _host(self, y: jax.Array) -> np.ndarray:
+        if self.mesh is None:
+            return np.asarray(y)
+        from .sharding import to_host
+
+        return to_host(y)
 
     def run(self, *arrays: np.ndarray, progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
         """Apply the kernel to every item of `arrays` (all of length n); numpy results."""
@@ -92,9 +122,9 @@ class ChunkedKernel:
                 part = np.asarray(a[start:stop], dtype=dtype)
                 if stop - start < c:
                     part = np.concatenate([part, np.repeat(part[-1:], c - (stop - start), axis=0)], axis=0)
-                parts.append(jnp.asarray(part))
+                parts.append(self._put(part))
             res = self._fn(*self.shared, *parts)
-            outs.append({k: np.asarray(v)[: stop - start] for k, v in res._asdict().items()})
+            outs.append({k: self._host(v)[: stop - start] for k, v in res._asdict().items()})
             if progress is not None:
                 progress(stop - start)
         self.kernel_seconds += time.perf_counter() - t0

@@ -18,6 +18,7 @@ import platform
 import statistics
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -263,36 +264,49 @@ def run_bench(args: argparse.Namespace) -> int:
     else:
         sizes = [1 << 16, 1 << 20, 1 << 21] if on_gpu else [4096, 16384]
     iterations = ReachConfig().iterations
+    sections = parse_sections(args.sections)
     report: dict = {
         "date": dt.date.today().isoformat(),
         "device": device_description(),
         "command": "lmjx bench " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else "lmjx bench",
         "python": platform.python_version(),
-        "ik": bench_lmjx_ik(robot, sizes, iterations, args.repeats),
     }
-    pk_batch = min(max(sizes), 1 << 20) if not args.quick else sizes[0]
-    try:
-        report["pytorch_kinematics"] = bench_pk(robot, pk_batch, iterations, args.repeats)
-    except (BaselineMissingError, ImportError) as e:
-        report["pytorch_kinematics"] = {"skipped": str(e)}
-    try:
-        report["pybullet"] = bench_pybullet(robot, 50 if args.quick else 500, (20, iterations, 200))
-    except (BaselineMissingError, ImportError) as e:
-        report["pybullet"] = {"skipped": str(e)}
-    map_cfg = ReachConfig(cell=0.05) if args.quick else ReachConfig()
-    report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", "case1", "case2"], map_cfg)
-    n_edges = 500 if args.quick else (100_000 if on_gpu else 5_000)
-    report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats)
+    ratios: dict = {}
+    if "ik" in sections:
+        report["ik"] = bench_lmjx_ik(robot, sizes, iterations, args.repeats)
+        pk_batch = min(max(sizes), 1 << 20) if not args.quick else sizes[0]
+        try:
+            report["pytorch_kinematics"] = bench_pk(robot, pk_batch, iterations, args.repeats)
+        except (BaselineMissingError, ImportError) as e:
+            report["pytorch_kinematics"] = {"skipped": str(e)}
+        try:
+            report["pybullet"] = bench_pybullet(robot, 50 if args.quick else 500, (20, iterations, 200))
+        except (BaselineMissingError, ImportError) as e:
+            report["pybullet"] = {"skipped": str(e)}
+        best = max(r["solve_check_per_s"] for r in report["ik"])
+        if "solve_per_s" in report["pybullet"]:
+            ratios["lmjx_vs_pybullet"] = best / report["pybullet"]["solve_per_s"]
+        if "solve_per_s" in report["pytorch_kinematics"]:
+            same = [r for r in report["ik"] if r["batch"] == report["pytorch_kinematics"]["batch"]]
+            ref = same[0]["solve_check_per_s"] if same else best
+            ratios["lmjx_vs_pytorch_kinematics_same_batch"] = ref / report["pytorch_kinematics"]["solve_per_s"]
+    if "maps" in sections:
+        map_cfg = ReachConfig(cell=0.05) if args.quick else ReachConfig()
+        report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", "case1", "case2"], map_cfg)
+    if "rollouts" in sections:
+        n_edges = 500 if args.quick else (100_000 if on_gpu else 5_000)
+        report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats)
+        ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
+    if "planner" in sections:
+        from .bench_planner import bench_planner
 
-    best = max(r["solve_check_per_s"] for r in report["ik"])
-    ratios = {}
-    if "solve_per_s" in report["pybullet"]:
-        ratios["lmjx_vs_pybullet"] = best / report["pybullet"]["solve_per_s"]
-    if "solve_per_s" in report["pytorch_kinematics"]:
-        same = [r for r in report["ik"] if r["batch"] == report["pytorch_kinematics"]["batch"]]
-        ref = same[0]["solve_check_per_s"] if same else best
-        ratios["lmjx_vs_pytorch_kinematics_same_batch"] = ref / report["pytorch_kinematics"]["solve_per_s"]
-    ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
+        n = args.candidates or (8 if args.quick else 256)
+        if Path(args.planner_map).exists():
+            report["planner"] = bench_planner(robot, args.planner_map, n, args.repeats, use_mjx=on_gpu)
+        else:
+            report["planner"] = {"skipped": f"no map at {args.planner_map} (make run builds maps/case2.h5)"}
+        if "speedup_mjx_vs_cpu" in report["planner"]:
+            ratios["mjx_greedy_scoring_vs_c_mujoco_all_cores"] = report["planner"]["speedup_mjx_vs_cpu"]
     report["ratios"] = ratios
 
     if args.out:
@@ -300,8 +314,36 @@ def run_bench(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    print(f"lmjx bench on {report['device']}, {report['date']}, {iterations} IK iterations")
-    print("  lmjx IK (PM, TCP on the task plane):")
+    print(f"lmjx bench on {report['device']}, {report['date']}")
+    if "ik" in report:
+        _print_ik(report, iterations)
+    if "maps" in report:
+        _print_maps(report)
+    if "rollouts" in report:
+        _print_rollouts(report)
+    if "planner" in report:
+        if "skipped" in report["planner"]:
+            print(f"  Greedy scoring: skipped ({report['planner']['skipped']})")
+        else:
+            _print_planner(report["planner"])
+    for k, v in ratios.items():
+        print(f"  {k}: {v:,.1f}x")
+    return 0
+
+
+SECTIONS = ("ik", "maps", "rollouts", "planner")
+
+
+def parse_sections(text: str) -> set[str]:
+    got = {s.strip() for s in text.split(",") if s.strip()}
+    bad = got - set(SECTIONS)
+    if bad or not got:
+        raise ConfigError(f"unknown bench section(s) {', '.join(sorted(bad)) or '(none)'}; use {','.join(SECTIONS)}")
+    return got
+
+
+def _print_ik(report: dict, iterations: int) -> None:
+    print(f"  lmjx IK (PM, TCP on the task plane, {iterations} iterations):")
     for r in report["ik"]:
         print(
             f"    batch {r['batch']:>9,}: solve {_fmt_rate(r['solve_per_s'])}, solve+checks "
@@ -326,6 +368,9 @@ def run_bench(args: argparse.Namespace) -> int:
                 f"  PyBullet calculateInverseKinematics loop on {pb['device']}, maxNumIterations "
                 f"{run['max_iterations']}: {_fmt_rate(run['solve_per_s'])} (success {run['success']:.2f})"
             )
+
+
+def _print_maps(report: dict) -> None:
     print("  whole Reach-Ability maps (after compilation):")
     for m in report["maps"]:
         print(
@@ -333,6 +378,9 @@ def run_bench(args: argparse.Namespace) -> int:
             f"{m['seconds']:.3f} s (compile {m['compile_s']:.1f} s), PM {m['area_m2']['pm']:.3f} m^2, "
             f"NPM+PM {m['area_m2']['npm_pm']:.3f} m^2"
         )
+
+
+def _print_rollouts(report: dict) -> None:
     ro = report["rollouts"]
     print(
         f"  edge rollouts ({ro['failure']}, {ro['edges_rolled_out']:,} edges of up to {ro['max_steps']} steps): "
@@ -344,6 +392,21 @@ def run_bench(args: argparse.Namespace) -> int:
         f"  serial C MuJoCo rollouts, same edges ({rr['edges']}): {_fmt_rate(rr['states_per_s'])} states; "
         f"lmjx {ro['speedup_states']:,.0f}x"
     )
-    for k, v in ratios.items():
-        print(f"  {k}: {v:,.1f}x")
-    return 0
+
+
+def _print_planner(pl: dict) -> None:
+    c = pl["cpu"]
+    print(
+        f"  Greedy scoring, scenario {pl['scenario']} ({pl['failure']}), {pl['candidates']} candidate actions "
+        f"of {pl['action_seconds_mean']:.1f} s on average:"
+    )
+    print(f"    {c['what']}: {c['seconds']:.3f} s, {_fmt_rate(c['steps_per_s'])} steps")
+    if "mjx" in pl:
+        m = pl["mjx"]
+        print(
+            f"    {m['what']}: {m['seconds']:.3f} s (first call {m['first_call_s']:.1f} s), "
+            f"{_fmt_rate(m['steps_per_s'])} steps; target ends {m['target_end_diff_m']['median'] * 100:.1f} cm "
+            f"from the CPU's (median), same choice: {m['same_choice']}"
+        )
+    g = pl["cpu_greedy_action"]
+    print(f"    one Greedy decision on the CPU ({g['candidates']} candidates, transits included): {g['seconds']:.2f} s")

@@ -192,6 +192,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
 
     p = sub.add_parser(
+        "atlas",
+        help="failure atlas: PM and NPM+PM areas for every 2- and 3-joint lock",
+        description="For every set of locked joints of the given sizes (21 pairs, 35 triples) and K lock angles per "
+        "locked joint (one drawn in each of K equal bins of the joint's range, seeded), compute the Reach-Ability "
+        "map and store its labels and areas in one HDF5 file.  One IK program serves every failure, and every "
+        "launch is split over all local accelerators (JAX sharding).  Resumable: progress is kept in "
+        "<out>.partial after every group of maps; rerun the same command to continue.  Several hosts: start the "
+        "same command on each with --coordinator HOST:PORT --num-processes N --process-id I (jax.distributed); "
+        "process 0 writes the files.",
+    )
+    p.add_argument("--joints", default="2,3", help="numbers of locked joints, comma separated (default 2,3)")
+    p.add_argument("--angles", type=_positive_int, default=3, help="K, lock angles per locked joint (default 3)")
+    p.add_argument("--out", default="maps/atlas.h5", help="HDF5 file to write (default maps/atlas.h5)")
+    p.add_argument("--group", type=_positive_int, default=64, help="maps per series of launches and checkpoint (64)")
+    _add_reach_options(p)
+    p.add_argument("--summary", help="also write a Markdown summary here (and its figure beside it as .png)")
+    p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
+    p.add_argument("--num-processes", type=_positive_int, default=1, help="multi-process runs: how many (default 1)")
+    p.add_argument("--process-id", type=int, default=0, help="multi-process runs: this process's rank (default 0)")
+    p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
+    p.add_argument("--chunk", type=_positive_int, help="IK problems per device per launch (default by platform)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+
+    p = sub.add_parser(
         "bench",
         help="benchmarks against the baselines, side by side",
         description="Time lmjx's batched IK against a serial PyBullet calculateInverseKinematics loop (PyBullet's "
@@ -201,6 +226,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small sizes that finish in about a minute on a CPU")
     p.add_argument("--sizes", help="comma-separated IK batch sizes (default: by device and --quick)")
     p.add_argument("--repeats", type=_positive_int, default=3, help="timed repetitions per figure; the median is kept")
+    p.add_argument(
+        "--sections",
+        default="ik,maps,rollouts,planner",
+        help="what to time, comma separated: ik (lmjx vs pytorch_kinematics vs PyBullet), maps (whole "
+        "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (Greedy scoring, MJX vs C "
+        "MuJoCo on all cores; needs a map with edges) (default: all)",
+    )
+    p.add_argument("--planner-map", default="maps/case2.h5", help="map for the planner section (default maps/case2.h5)")
+    p.add_argument(
+        "--candidates", type=_positive_int, help="candidate actions scored at once (default 256; 8 with --quick)"
+    )
     p.add_argument("--out", help="write the results as JSON to this file")
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     _add_device(p)
@@ -575,6 +611,83 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_atlas(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from .errors import ConfigError
+
+    try:
+        sizes = tuple(int(x) for x in args.joints.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError(f"--joints must be numbers of locked joints like 2,3, got '{args.joints}'") from None
+    if args.coordinator or args.num_processes > 1:
+        if not args.coordinator:
+            raise ConfigError("--num-processes > 1 needs --coordinator HOST:PORT")
+        from .sharding import init_distributed
+
+        init_distributed(args.coordinator, args.num_processes, args.process_id)
+    import jax
+
+    from .atlas import AtlasConfig, build_atlas, expected_maps
+    from .robot import load_robot
+
+    robot = load_robot()
+    reach = replace(_reach_config(args), chunk=args.chunk)
+    config = AtlasConfig(sizes=sizes, angles=args.angles, seed=args.seed, group=args.group, reach=reach)
+    config.validate(robot)
+    lead = jax.process_index() == 0
+    if args.summary and lead:
+        from .fileio import check_writable
+
+        check_writable(args.summary, "summary")
+    try:
+        st = build_atlas(robot, config, args.out, progress=True, sharded=not args.no_shard)
+    except KeyboardInterrupt:
+        print(
+            f"lmjx atlas: interrupted; finished groups are kept in {args.out}.partial: rerun the same command to "
+            "continue",
+            file=sys.stderr,
+        )
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
+    if not lead:
+        return 0
+    if args.summary:
+        from pathlib import Path
+
+        from .atlas_report import write_summary
+
+        md = Path(args.summary)
+        write_summary(st, md, md.with_suffix(".png"))
+    areas = st.areas()
+    session = st.run["sessions"][-1]
+    summary = {
+        "out": args.out,
+        "maps": st.n,
+        "expected_maps": expected_maps(sizes, args.angles),
+        "complete": bool(st.done.all()),
+        "device": session["device"],
+        "devices": session["devices"],
+        "processes": session["processes"],
+        "seconds": session["seconds"],
+        "compile_s": session.get("compile_s", 0.0),
+        "maps_this_run": session["maps"],
+        "pm_zero": int((areas["pm"] == 0).sum()),
+        "rescued_by_npm": int(((areas["pm"] == 0) & (areas["npm_pm"] > 0)).sum()),
+    }
+    lines = [
+        f"atlas {args.out}: {st.n} maps ({summary['maps_this_run']} computed now) on {summary['devices']} "
+        f"device(s) of {summary['processes']} process(es), {summary['device']}",
+        f"  {summary['seconds']:.1f} s (compile {summary['compile_s']:.1f} s)",
+        f"  PM = 0 in {summary['pm_zero']} maps; NPM rescues {summary['rescued_by_npm']} of them",
+    ]
+    if args.summary:
+        lines.append(f"  summary written to {args.summary}")
+    _emit(args, summary, lines)
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
@@ -589,6 +702,7 @@ COMMANDS = {
     "lock-search": cmd_lock_search,
     "info": cmd_info,
     "bench": cmd_bench,
+    "atlas": cmd_atlas,
 }
 
 

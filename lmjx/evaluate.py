@@ -61,6 +61,10 @@ def trial_seed(base: int, scenario: int, trial: int) -> int:
     return base * 100_000 + scenario * 1000 + trial
 
 
+def _num(x: float | None) -> str:
+    return "–" if x is None else f"{x:.1f}"
+
+
 def _load_results(path: Path) -> list[dict]:
     if not path.exists():
         return []
@@ -133,7 +137,7 @@ def summarize(records: list[dict]) -> list[dict]:
                 "asm": a,
                 "trials": len(rs),
                 "success_rate": len(ok) / len(rs),
-                "actions_mean_success": float(np.mean([r["actions"] for r in ok])) if ok else float("nan"),
+                "actions_mean_success": float(np.mean([r["actions"] for r in ok])) if ok else None,
                 "planning_s_mean": float(np.mean([r["planning_s"] for r in rs])),
                 "execution_s_mean": float(np.mean([r["execution_s"] for r in rs])),
                 "task_s_mean": float(np.mean([r["planning_s"] + r["execution_s"] for r in rs])),
@@ -158,7 +162,7 @@ def report_markdown(records: list[dict], config: EvalConfig, device: str) -> str
     for r in rows:
         lines.append(
             f"| {r['failure']} | {r['scenario']} | {r['asm']} | {r['trials']} | {r['success_rate'] * 100:.1f} % | "
-            f"{r['actions_mean_success']:.1f} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
+            f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
             f"{r['task_s_mean']:.1f} |"
         )
     lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]

@@ -44,6 +44,10 @@ class IKBatch:
       settings: solver and acceptance parameters.
       chunk: problems per kernel call.
       traced_locks: lock angles as kernel inputs rather than compiled-in constants.
+      masked: every joint is solved for, and which are locked is a per-problem input (a
+        0/1 mask; the locked joints' initial angles are their lock angles): one program
+        for every failure (`lmjx.atlas`).  `failure` is then ignored.
+      sharded: split each chunk over all devices (`lmjx.sharding`); `chunk` is per device.
     """
 
     robot: Robot
@@ -52,10 +56,14 @@ class IKBatch:
     settings: IKSettings
     chunk: int
     traced_locks: bool = False
+    masked: bool = False
+    sharded: bool = False
     _kernel: ChunkedKernel | None = field(default=None, repr=False)
 
     @property
     def free(self) -> tuple[int, ...]:
+        if self.masked:
+            return tuple(range(self.robot.nq))
         return self.failure.free(self.robot.nq)
 
     @property
@@ -68,7 +76,6 @@ class IKBatch:
 
     def _make(self) -> ChunkedKernel:
         arm, settings, sites, free = self.robot.arm, self.settings, self.sites, self.free
-        q_fixed = self.failure.q_fixed(self.robot.nq)
 
         def one(q_locks, target, site, pm, q0):
             q = ik_solve(arm, settings, free, q_locks, sites, target, site, pm, q0)
@@ -76,9 +83,23 @@ class IKBatch:
 
         inputs = [(np.float32, (4,)), (np.int32, ()), (np.bool_, ()), (np.float32, (len(free),))]
         key = ("ik", self.robot.model_hash, free, sites, settings)
+        if self.masked:
+            q_any = np.zeros(self.robot.nq)  # every joint is "free": no angle is read from here
+
+            def one_masked(target, site, pm, q0, mask):
+                q = ik_solve(arm, settings, free, q_any, sites, target, site, pm, q0, free_mask=mask)
+                return ik_check(arm, settings, free, q_any, sites, target, site, pm, q)
+
+            inputs.append((np.float32, (len(free),)))
+            return ChunkedKernel((*key, "masked"), one_masked, [], inputs, self.chunk, sharded=self.sharded)
+        q_fixed = self.failure.q_fixed(self.robot.nq)
         if self.traced_locks:
-            return ChunkedKernel((*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk)
-        return ChunkedKernel((*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk)
+            return ChunkedKernel(
+                (*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk, sharded=self.sharded
+            )
+        return ChunkedKernel(
+            (*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk, sharded=self.sharded
+        )
 
     def solve(
         self,
@@ -87,6 +108,7 @@ class IKBatch:
         pm: np.ndarray,
         q0: np.ndarray,
         progress: Callable[[int], None] | None = None,
+        mask: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """Solve a flat batch.
 
@@ -96,9 +118,14 @@ class IKBatch:
           pm: (n,) prehensile flag.
           q0: (n, nf) initial free joint angles.
           progress: called with the number of problems finished after each chunk.
+          mask: (n, nq) 1/0 free joints, only with `masked` (then q0 is (n, nq)).
         Returns:
           numpy arrays over the batch: ok, q (n, nq), pos_err, tool_z, table, self, cube.
         """
         if self._kernel is None:
             self._kernel = self._make()
+        if self.masked:
+            if mask is None:
+                raise ValueError("a masked IKBatch needs the per-problem mask of free joints")
+            return self._kernel.run(targets, site, pm, q0, mask, progress=progress)
         return self._kernel.run(targets, site, pm, q0, progress=progress)

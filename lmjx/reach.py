@@ -177,6 +177,27 @@ def _perturbations(rng: np.random.Generator, n: int, k: int, eps: float) -> np.n
     return off
 
 
+def attempt_plan(
+    robot: Robot, config: ReachConfig
+) -> tuple[tuple[int, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What each of the k attempts asks for: the sites (index 0 the TCP for PM, then the
+    interaction points cycled by NPM attempts), and per attempt the site, PM flag and the
+    height band (z_lo, z_hi) of the target."""
+    k = config.attempts
+    ip_sites = [robot.interaction_points[name] for name in config.interaction_points]
+    sites = (robot.tcp_site, *ip_sites)
+    attempt_site = np.array([0 if a < config.n_pm else 1 + (a - config.n_pm) % len(ip_sites) for a in range(k)])
+    attempt_pm = np.arange(k) < config.n_pm
+    radius = robot.arm.site_radius[list(sites)]
+    z_lo = np.where(attempt_pm, config.grasp_height, radius[attempt_site])
+    z_hi = np.where(
+        attempt_pm,
+        config.grasp_height,
+        np.maximum(radius[attempt_site], config.object_height + radius[attempt_site] - config.npm_overlap),
+    )
+    return sites, attempt_site, attempt_pm, z_lo, z_hi
+
+
 def reach_map(
     failure: Failure | str,
     config: ReachConfig | None = None,
@@ -201,18 +222,7 @@ def reach_map(
     gx, gy = np.meshgrid(xs, ys)  # (ny, nx)
     centres = np.stack([gx.ravel(), gy.ravel()], axis=-1)  # (n, 2), cell c = iy * nx + ix
 
-    # Sites: index 0 is the TCP (PM), then the interaction points cycled by NPM attempts.
-    ip_sites = [robot.interaction_points[name] for name in config.interaction_points]
-    sites = (robot.tcp_site, *ip_sites)
-    attempt_site = np.array([0 if a < config.n_pm else 1 + (a - config.n_pm) % len(ip_sites) for a in range(k)])
-    attempt_pm = np.arange(k) < config.n_pm
-    radius = robot.arm.site_radius[list(sites)]
-    z_lo = np.where(attempt_pm, config.grasp_height, radius[attempt_site])
-    z_hi = np.where(
-        attempt_pm,
-        config.grasp_height,
-        np.maximum(radius[attempt_site], config.object_height + radius[attempt_site] - config.npm_overlap),
-    )
+    sites, attempt_site, attempt_pm, z_lo, z_hi = attempt_plan(robot, config)
 
     # All randomness is drawn up front from the seed, so the labels do not depend on the
     # strategy or the chunk size.

@@ -105,7 +105,7 @@ def _scenario2() -> Scenario:
     # through, the rest of the arm not; the goal lies just past its exit.
     y_wall, half_t = 0.26, 0.005  # 1 cm thick
     wall_h = 0.14  # half height: 28 cm tall
-    gap_lo, gap_hi = 0.32, 0.62  # the opening along x: 30 cm
+    gap_lo, gap_hi = 0.29, 0.65  # the opening along x: 36 cm
     roof_z = 0.25  # underside of the roof
     walls = (
         Box("wall_near", ((gap_lo - 0.12) / 2, half_t, wall_h), (0.12 + gap_lo) / 2, y_wall, movable=False,
@@ -118,13 +118,13 @@ def _scenario2() -> Scenario:
     return Scenario(
         2,
         "tunnel",
-        "A fixed wall across the table with a roofed opening (a tunnel 30 cm wide and 25 cm "
-        "high through a 1 cm wall): the target starts on the far side and its goal lies on the "
-        "near side, just past the exit; no object can go around the wall.",
+        "A fixed wall across the table with a roofed opening (a tunnel 36 cm wide and 25 cm "
+        "high through a 1 cm wall): the target starts on the far side; the goal region begins "
+        "at the tunnel's exit on the near side; no object can go around the wall.",
         _target(0.47, 0.40),
         (),
         fixed=walls,
-        goal_center=(0.47, 0.17),
+        goal_center=(0.47, 0.18),
     )
 
 
