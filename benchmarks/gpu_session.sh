@@ -51,6 +51,23 @@ for step in $steps; do
     locks1)
       timeout 300 python3 -m lmjx.cli lock-search --joints J3,J5 --base J7=0.785398 --grid 7 --out "$OUT/lock_j3j5.json" \
         --png "$OUT/lock_j3j5.png" | tail -3 ;;
+    planner)
+      # Greedy scoring on the GPU (MJX) against C MuJoCo on all host cores; a case-2 map built here.
+      timeout 200 python3 -m lmjx.cli build-map --failure case2 --out "$WORK/case2.h5" --json 2> "$WORK/build.err" \
+        | tail -3
+      timeout 400 python3 -m lmjx.cli bench --sections planner --planner-map "$WORK/case2.h5" \
+        --out "$OUT/bench_planner.json" ;;
+    atlas1)
+      # The whole atlas (K = 3, 1,134 maps) on one GPU, compilation included (cold cache).
+      JAX_COMPILATION_CACHE_DIR= /usr/bin/time -f "atlas1 wall %e s" timeout 590 python3 -m lmjx.cli atlas --no-shard \
+        --out "$WORK/atlas1.h5" --json > "$OUT/atlas1.json" 2> "$WORK/atlas1.err"; tail -2 "$WORK/atlas1.err"
+      cat "$OUT/atlas1.json"; cp "$WORK/atlas1.h5" "$OUT/atlas1.h5" ;;
+    atlas2)
+      # The same atlas with the batch sharded over every local GPU; then compare the files.
+      JAX_COMPILATION_CACHE_DIR= /usr/bin/time -f "atlas2 wall %e s" timeout 590 python3 -m lmjx.cli atlas \
+        --out "$WORK/atlas2.h5" --json > "$OUT/atlas2.json" 2> "$WORK/atlas2.err"; tail -2 "$WORK/atlas2.err"
+      cat "$OUT/atlas2.json"; cp "$WORK/atlas2.h5" "$OUT/atlas2.h5"
+      python3 -c "from lmjx.atlas import same_content as s; print('atlas1 vs atlas2 differences:', s('$WORK/atlas1.h5', '$WORK/atlas2.h5'))" ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;

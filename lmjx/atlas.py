@@ -51,7 +51,7 @@ class AtlasConfig:
     sizes: tuple[int, ...] = (2, 3)  # numbers of locked joints
     angles: int = 3  # K lock angles per locked joint
     seed: int = 0
-    group: int = 64  # maps per series of launches and per checkpoint (not part of the content)
+    group: int = 256  # maps per series of launches and per checkpoint (not part of the content)
     reach: ReachConfig = field(default_factory=ReachConfig)
 
     def validate(self, robot: Robot) -> None:
@@ -193,9 +193,11 @@ class AtlasRunner:
         gx, gy = np.meshgrid(xs, ys)
         self.centres = np.stack([gx.ravel(), gy.ravel()], axis=-1)
         self.eps = rc.cell / 2 if rc.epsilon is None else rc.epsilon
-        self.batch = IKBatch(
-            robot, None, self.sites, rc.ik_settings(), rc.chunk or default_chunk(), masked=True, sharded=sharded
-        )  # type: ignore[arg-type]
+        # Modest chunks (per device): the rounds shrink from attempt to attempt, and a chunk
+        # padded far beyond its problems is wasted work (IK throughput on an H200 is within
+        # 12 % from 64 k to 1 M problems per call).
+        chunk = rc.chunk or min(default_chunk(), 1 << 16)
+        self.batch = IKBatch(robot, None, self.sites, rc.ik_settings(), chunk, masked=True, sharded=sharded)  # type: ignore[arg-type]
 
     def _draws(self, map_id: int, attempt: int) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) target offsets and (n, M, 7) restart angles of one map's attempt."""
@@ -302,7 +304,7 @@ def build_atlas(
     run.setdefault("sessions", [])
     session = {
         "device": device,
-        "devices": jax.device_count(),
+        "devices": jax.device_count() if sharded else 1,
         "processes": jax.process_count(),
         "maps": 0,
         "seconds": 0.0,

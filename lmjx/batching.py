@@ -115,6 +115,14 @@ class ChunkedKernel:
         n = len(arrays[0])
         c = self.chunk
         outs: list[dict[str, np.ndarray]] = []
+        pending: tuple | None = None  # the call in flight: the device works while the host prepares the next
+
+        def collect(p: tuple) -> None:
+            res, count = p
+            outs.append({k: self._host(v)[:count] for k, v in res._asdict().items()})
+            if progress is not None:
+                progress(count)
+
         for start in range(0, n, c):
             stop = min(start + c, n)
             parts = []
@@ -123,10 +131,12 @@ class ChunkedKernel:
                 if stop - start < c:
                     part = np.concatenate([part, np.repeat(part[-1:], c - (stop - start), axis=0)], axis=0)
                 parts.append(self._put(part))
-            res = self._fn(*self.shared, *parts)
-            outs.append({k: self._host(v)[: stop - start] for k, v in res._asdict().items()})
-            if progress is not None:
-                progress(stop - start)
+            res = self._fn(*self.shared, *parts)  # asynchronous dispatch
+            if pending is not None:
+                collect(pending)
+            pending = (res, stop - start)
+        if pending is not None:
+            collect(pending)
         self.kernel_seconds += time.perf_counter() - t0
         if not outs:
             return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}

@@ -401,12 +401,15 @@ def _print_planner(pl: dict) -> None:
         f"of {pl['action_seconds_mean']:.1f} s on average:"
     )
     print(f"    {c['what']}: {c['seconds']:.3f} s, {_fmt_rate(c['steps_per_s'])} steps")
-    if "mjx" in pl:
-        m = pl["mjx"]
-        print(
-            f"    {m['what']}: {m['seconds']:.3f} s (first call {m['first_call_s']:.1f} s), "
-            f"{_fmt_rate(m['steps_per_s'])} steps; target ends {m['target_end_diff_m']['median'] * 100:.1f} cm "
-            f"from the CPU's (median), same choice: {m['same_choice']}"
-        )
+    for key in ("cpu_near", "mjx"):
+        if key in pl:
+            m = pl[key]
+            first = f" (first call {m['first_call_s']:.1f} s)" if "first_call_s" in m else ""
+            print(
+                f"    {m['what']}: {m['seconds']:.3f} s{first}, {_fmt_rate(m['steps_per_s'])} steps; target ends "
+                f"{m['target_end_diff_m']['median'] * 100:.1f} cm from the whole scene's (median), same choice: "
+                f"{m['same_choice']} (gap {m['choice_gap_m'] * 100:.1f} cm)"
+            )
+    print(f"    fastest: {pl['fastest']['simulator']}, {pl['fastest']['seconds']:.3f} s")
     g = pl["cpu_greedy_action"]
     print(f"    one Greedy decision on the CPU ({g['candidates']} candidates, transits included): {g['seconds']:.2f} s")

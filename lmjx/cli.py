@@ -56,6 +56,16 @@ def _add_device(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_sim(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--sim",
+        choices=("cpu", "cpu-near", "mjx"),
+        default="cpu",
+        help="the planner's simulator: cpu (C MuJoCo, whole scene, all host cores; default), cpu-near (only the "
+        "target and its 3 nearest objects), mjx (MuJoCo MJX on the accelerator)",
+    )
+
+
 def _add_reach_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cell", type=_positive_float, default=0.02, help="cell edge in metres (default 0.02)")
     p.add_argument(
@@ -132,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--failure", help="refuse the map unless it was built for this failure")
     p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
     p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget (default 30)")
+    _add_sim(p)
     p.add_argument(
         "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
     )
@@ -154,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--maps", default="maps", help="folder of <failure>.h5 map files (default maps)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
     p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget per task (default 30)")
+    _add_sim(p)
     p.add_argument(
         "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
     )
@@ -205,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--joints", default="2,3", help="numbers of locked joints, comma separated (default 2,3)")
     p.add_argument("--angles", type=_positive_int, default=3, help="K, lock angles per locked joint (default 3)")
     p.add_argument("--out", default="maps/atlas.h5", help="HDF5 file to write (default maps/atlas.h5)")
-    p.add_argument("--group", type=_positive_int, default=64, help="maps per series of launches and checkpoint (64)")
+    p.add_argument("--group", type=_positive_int, default=256, help="maps per series of launches and checkpoint (256)")
     _add_reach_options(p)
     p.add_argument("--summary", help="also write a Markdown summary here (and its figure beside it as .png)")
     p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
@@ -530,7 +542,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         check_render_path(args.render)
         check_writable(args.render, "rendering")
     config = _planner_config(args, args.asm)
-    setup = setup_trial(robot, m, args.scenario, config, args.seed)
+    from .trial import make_simulator
+
+    sim = make_simulator(robot, args.scenario, args.sim) if config.asm != "random" else None
+    setup = setup_trial(robot, m, args.scenario, config, args.seed, simulator=sim)
     recorder = None
     if args.render:
         from .render import Recorder
@@ -571,7 +586,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .batching import backend, device_description
+    from .batching import device_description
     from .errors import ConfigError
     from .evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, summarize
     from .fileio import check_writable, write_text_atomic
@@ -591,7 +606,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         trials=args.trials,
         seed=args.seed,
         planner=_planner_config(args, "greedy"),
-        backend="mjx" if backend() != "cpu" else "cpu",
+        backend=args.sim,
     )
     config.validate()
     out = Path(args.out)

@@ -1,21 +1,77 @@
 """Renderings of a trial: the "real" world recorded while actions execute, drawn with
 MuJoCo's renderer into a frame strip (.png), an animation (.gif) or a video (.mp4, needs
-imageio with ffmpeg).  Rendering needs OpenGL: on a headless Linux machine install OSMesa
-(Debian: libosmesa6) and set MUJOCO_GL=osmesa, or use EGL on a GPU machine."""
+imageio with ffmpeg); and still images of a scene (`scene_image`).  Rendering needs OpenGL:
+on a headless Linux machine install OSMesa (Debian: libosmesa6) and set MUJOCO_GL=osmesa,
+or use EGL on a GPU machine.  Nothing here plans or simulates."""
 
 from __future__ import annotations
 
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from .errors import ConfigError
-from .executor import SimulatedRealWorld
 from .fileio import atomic_path
 
+if TYPE_CHECKING:
+    from .executor import SimulatedRealWorld
+    from .scene import Scene
+
 FORMATS = (".png", ".gif", ".mp4")
+
+
+@dataclass(frozen=True)
+class View:
+    """A free camera: the point it looks at [m], its distance [m], azimuth and elevation [deg]."""
+
+    lookat: tuple[float, float, float] = (0.4, 0.0, 0.1)
+    distance: float = 1.5
+    azimuth: float = 200.0
+    elevation: float = -40.0
+
+    def camera(self) -> mujoco.MjvCamera:
+        cam = mujoco.MjvCamera()
+        cam.lookat[:] = self.lookat
+        cam.distance = self.distance
+        cam.azimuth = self.azimuth
+        cam.elevation = self.elevation
+        return cam
+
+
+TRIAL_VIEW = View()
+
+
+def gl_problem() -> str | None:
+    """None if MuJoCo can render offscreen here, else a one-line reason with the fix."""
+    try:
+        m = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='1'/></worldbody></mujoco>")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # GLFW warns before it fails
+            with mujoco.Renderer(m, 16, 16) as r:
+                r.render()
+    except Exception as e:
+        gl = os.environ.get("MUJOCO_GL", "unset")
+        return (
+            f"no OpenGL for MuJoCo (MUJOCO_GL={gl}: {type(e).__name__}); on a headless machine install OSMesa "
+            "(Debian: libosmesa6) and set MUJOCO_GL=osmesa, or MUJOCO_GL=egl on a GPU machine"
+        )
+    return None
+
+
+def scene_image(scene: Scene, qpos: np.ndarray, view: View, width: int = 720, height: int = 540) -> np.ndarray:
+    """(height, width, 3) uint8 picture of `scene` at the state `qpos` (nq,), seen from `view`."""
+    m = scene.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    mujoco.mj_forward(m, d)
+    with mujoco.Renderer(m, height, width) as r:
+        r.update_scene(d, camera=view.camera())
+        return r.render().copy()
 
 
 def check_render_path(path: str) -> None:
@@ -27,16 +83,9 @@ def check_render_path(path: str) -> None:
             import imageio.v2  # noqa: F401
         except ImportError:
             raise ConfigError("--render .mp4 needs imageio and imageio-ffmpeg; use .gif or .png instead") from None
-    try:
-        m = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='1'/></worldbody></mujoco>")
-        with mujoco.Renderer(m, 16, 16) as r:
-            r.render()
-    except Exception as e:
-        gl = os.environ.get("MUJOCO_GL", "default")
-        raise ConfigError(
-            f"--render: no OpenGL for MuJoCo (MUJOCO_GL={gl}: {type(e).__name__}); on a headless machine install "
-            "OSMesa (Debian: libosmesa6) and set MUJOCO_GL=osmesa"
-        ) from None
+    problem = gl_problem()
+    if problem is not None:
+        raise ConfigError(f"--render: {problem}")
 
 
 class Recorder:
@@ -59,11 +108,7 @@ class Recorder:
         assert scene is not None
         m = scene.model
         d = mujoco.MjData(m)
-        cam = mujoco.MjvCamera()
-        cam.lookat[:] = (0.4, 0.0, 0.1)
-        cam.distance = 1.5
-        cam.azimuth = 200.0
-        cam.elevation = -40.0
+        cam = TRIAL_VIEW.camera()
         out = []
         with mujoco.Renderer(m, height, width) as r:
             for q in self.frames[::every]:

@@ -10,6 +10,7 @@ world's.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Protocol
 
 import mujoco
@@ -17,7 +18,14 @@ import numpy as np
 from mujoco import rollout
 
 from .actions import Action, controls
-from .scene import Scene, set_state
+from .robot import Robot
+from .scene import Scene, build_scene, set_state
+
+
+def nearest_objects(obj_qpos: np.ndarray, k: int) -> list[int]:
+    """The target (0) and the k - 1 objects nearest to it (observed centres)."""
+    dist = np.hypot(*(obj_qpos[:, :2] - obj_qpos[0, :2]).T)
+    return [0, *[int(i) for i in np.argsort(dist, kind="stable") if i != 0][: k - 1]]
 
 
 class Simulator(Protocol):
@@ -27,17 +35,40 @@ class Simulator(Protocol):
 
 
 class CpuSimulator:
-    """Batched rollouts with C MuJoCo on `threads` host threads (default: all cores)."""
+    """Batched rollouts with C MuJoCo on `threads` host threads (default: all cores).
 
-    def __init__(self, scene: Scene, settle: float = 0.5, threads: int | None = None, segment: int = 200) -> None:
+    With `k_objects`, only the target and its `k_objects - 1` nearest objects (as observed)
+    are simulated; the others stay where they were seen (the approximation the MJX path
+    makes; `lmjx bench` measures what it costs in agreement).  Scenes are built per chosen
+    set of objects and kept.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        settle: float = 0.5,
+        threads: int | None = None,
+        segment: int = 200,
+        k_objects: int | None = None,
+        robot: Robot | None = None,
+    ) -> None:
         self.scene = scene
         self.settle = settle
         self.threads = threads or os.cpu_count() or 1
-        self.datas = [mujoco.MjData(scene.model) for _ in range(self.threads)]
         self.segment = segment
         self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        self.nstate = mujoco.mj_stateSize(scene.model, self.spec)
+        self.k = None if k_objects is None else min(k_objects, scene.n_objects)
+        if self.k is not None and robot is None:
+            raise ValueError("k_objects needs the robot (to build the reduced scenes)")
+        self.robot = robot
+        self._scenes: dict[tuple[int, ...], tuple[Scene, list[mujoco.MjData]]] = {}
+        self._use(scene)
         self.steps_run = 0
+
+    def _use(self, scene: Scene) -> None:
+        self.scene = scene
+        self.datas = [mujoco.MjData(scene.model) for _ in range(self.threads)]
+        self.nstate = mujoco.mj_stateSize(scene.model, self.spec)
 
     def initial_state(self, robot_q: np.ndarray, obj_qpos: np.ndarray) -> np.ndarray:
         d = self.datas[0]
@@ -48,7 +79,27 @@ class CpuSimulator:
 
     def simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
         if not actions:
-            return np.zeros((0, self.scene.n_objects, 7))
+            return np.zeros((0, len(obj_qpos), 7))
+        if self.k is None:
+            return self._simulate(robot_q, obj_qpos, actions)
+        chosen = nearest_objects(obj_qpos, self.k)
+        key = tuple(chosen)
+        if key not in self._scenes:
+            full = self._scenes.get((), (self.scene, self.datas))
+            self._scenes[()] = full
+            sc = full[0].scenario
+            sub = replace(sc, target=sc.movable[chosen[0]], obstacles=tuple(sc.movable[i] for i in chosen[1:]))
+            assert self.robot is not None
+            self._use(build_scene(self.robot, sub, full[0].physics))
+            self._scenes[key] = (self.scene, self.datas)
+        self.scene, self.datas = self._scenes[key]
+        self.nstate = mujoco.mj_stateSize(self.scene.model, self.spec)
+        part = self._simulate(robot_q, obj_qpos[chosen], actions)
+        final = np.repeat(obj_qpos[None], len(actions), axis=0).astype(np.float64)
+        final[:, chosen] = part
+        return final
+
+    def _simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
         m = self.scene.model
         ctrl = [controls(a, m.opt.timestep, self.settle) for a in actions]
         n = max(len(c) for c in ctrl)

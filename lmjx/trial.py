@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .errors import ConfigError
 from .executor import SimulatedRealWorld
 from .mapfile import MapFile
 from .planner import ASMS, Planner, PlannerConfig, TrialResult
@@ -26,9 +27,19 @@ class TrialSetup:
     planner_seed: int
 
 
+SIMULATORS = ("cpu", "cpu-near", "mjx")
+
+
 def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu") -> Simulator:
-    """The planner's simulator: C MuJoCo on all host cores, or MJX on the accelerator."""
+    """The planner's simulator: C MuJoCo on all host cores (the whole scene, or "cpu-near":
+    the target and its 3 nearest objects), or MJX on the accelerator.  Measured in
+    benchmarks/RESULTS.md: C MuJoCo on the host cores is both faster and closer to the
+    whole scene than MJX at the planner's batch sizes, so it is the default everywhere."""
     sc = scenario(scenario_number)
+    if backend not in SIMULATORS:
+        raise ConfigError(f"unknown simulator '{backend}'; use {', '.join(SIMULATORS)}")
+    if backend == "cpu-near":
+        return CpuSimulator(build_scene(robot, sc), k_objects=4, robot=robot)
     if backend == "mjx":
         from .simulate_mjx import MjxSimulator
 
