@@ -3,18 +3,20 @@ locked joints of the Panda, at K lock angles per locked joint.
 
 Every map is computed as `lmjx.reach` computes one (same grid, attempts, restarts, interaction
 points, acceptance checks and smoothing; strategy "rounds": attempt by attempt, only the cells
-still unlabelled go on), but by one IK program for every failure: all seven joints are solved
-for and a per-problem 0/1 mask says which are locked (`kernels.ik.ik_solve(free_mask=...)`), so
-problems of many maps share every launch, and the batch axis is split over every device of
-every process (`lmjx.sharding`).
+still unlabelled go on), but by one program for every failure: all seven joints are solved
+for and a 0/1 mask says which are locked (`kernels.ik.ik_solve(free_mask=...)`), so cells of
+many maps share every launch; an item (map, cell, attempt) draws its own perturbation and
+restarts on the device (`kernels.atlas_cell`); and the batch axis is split over every device
+of every process (`lmjx.sharding`).
 
 Lock angles: the range of joint j is cut into K equal bins and one angle is drawn uniformly in
 each (seeded), the same K angles for joint j in every subset.  A subset of s joints gets the
 K^s combinations: 21 x 9 + 35 x 27 = 1,134 maps at K = 3.
 
-Randomness: each map draws its target perturbations and restart angles from its own stream
-(seed, map number, attempt), so a map's labels do not depend on which maps share its
-launches, on the group size, on the number of devices, or on a resumed run.
+Randomness: every (map, attempt, cell) draws its target perturbation and restart angles from
+a counter-based key (seed, map number, attempt, cell), so a map's labels do not depend on
+which maps share its launches, on the group size, on the chunk size, on the number of
+devices or processes, or on a resumed run.
 
 Resumable: after every group of maps the whole atlas so far is written (atomically) to
 `<out>.partial`; a rerun with the same parameters picks it up and computes only the groups
@@ -36,7 +38,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .fileio import atomic_path, check_writable
-from .ik_batch import IKBatch, default_chunk, device_description
+from .ik_batch import device_description
 from .progress import Progress
 from .reach import NPM, PM, UNREACHABLE, ReachConfig, attempt_plan, smooth_labels
 from .robot import Robot
@@ -182,68 +184,64 @@ def _tuples(d: dict) -> dict:
 
 
 class AtlasRunner:
-    """Computes the maps of an atlas, group by group."""
+    """Computes the maps of an atlas, group by group: per attempt, one batch of (map, cell)
+    items over every cell still unlabelled, each item solved whole on the device
+    (`kernels.atlas_cell`)."""
 
     def __init__(self, robot: Robot, config: AtlasConfig, sharded: bool = True) -> None:
+        from functools import partial
+
+        from .batching import ChunkedKernel
+        from .kernels.atlas_cell import atlas_cell
+
         self.robot = robot
         self.config = config
         rc = config.reach
-        self.sites, self.attempt_site, self.attempt_pm, self.z_lo, self.z_hi = attempt_plan(robot, rc)
+        sites, attempt_site, attempt_pm, z_lo, z_hi = attempt_plan(robot, rc)
         xs, ys = rc.grid()
         gx, gy = np.meshgrid(xs, ys)
-        self.centres = np.stack([gx.ravel(), gy.ravel()], axis=-1)
-        self.eps = rc.cell / 2 if rc.epsilon is None else rc.epsilon
-        # Modest chunks (per device): the rounds shrink from attempt to attempt, and a chunk
-        # padded far beyond its problems is wasted work (IK throughput on an H200 is within
-        # 12 % from 64 k to 1 M problems per call).
-        chunk = rc.chunk or min(default_chunk(), 1 << 16)
-        self.batch = IKBatch(robot, None, self.sites, rc.ik_settings(), chunk, masked=True, sharded=sharded)  # type: ignore[arg-type]
+        centres = np.stack([gx.ravel(), gy.ravel()], axis=-1).astype(np.float32)
+        self.n_cells = len(centres)
+        eps = rc.cell / 2 if rc.epsilon is None else rc.epsilon
+        joints, angles = entries(robot, config)
+        masks = np.ones((len(joints), robot.nq), np.float32)
+        locks = np.zeros((len(joints), robot.nq), np.float32)
+        for i, (js, ang) in enumerate(zip(joints, angles, strict=True)):
+            for j, v in zip(js, ang, strict=True):
+                if j > 0:
+                    masks[i, j - 1] = 0.0
+                    locks[i, j - 1] = v
+        settings = rc.ik_settings()
+        one = partial(
+            atlas_cell, robot.arm, settings, sites, rc.seed * 1_000_003 + config.seed, rc.restarts, float(eps),
+            attempt_site, attempt_pm, z_lo, z_hi,
+        )  # fmt: skip
+        key = (
+            "atlas-cell", robot.model_hash, sites, settings, rc.seed, config.seed, rc.restarts, float(eps),
+            tuple(attempt_site), tuple(attempt_pm), tuple(z_lo), tuple(z_hi), masks.shape, centres.shape,
+        )  # fmt: skip
+        # Items are cells (M restarts each): modest chunks per device, since the rounds shrink
+        # from attempt to attempt and a chunk padded far beyond its items is wasted work.
+        from .batching import backend
 
-    def _draws(self, map_id: int, attempt: int) -> tuple[np.ndarray, np.ndarray]:
-        """(n, 2) target offsets and (n, M, 7) restart angles of one map's attempt."""
-        rc, robot = self.config.reach, self.robot
-        n, m = len(self.centres), rc.restarts
-        rng = np.random.default_rng([rc.seed, self.config.seed, map_id, attempt])
-        r = self.eps * np.sqrt(rng.random(n))
-        th = 2 * np.pi * rng.random(n)
-        off = np.stack([r * np.cos(th), r * np.sin(th)], axis=-1) * (attempt > 0)
-        q0 = robot.lower + rng.random((n, m, robot.nq)) * (robot.upper - robot.lower)
-        return off, q0
+        chunk = rc.chunk or (1 << 13 if backend() != "cpu" else 512)
+        inputs = [(np.int32, ()), (np.int32, ()), (np.int32, ())]
+        self.kernel = ChunkedKernel(key, one, [masks, locks, centres], inputs, chunk, sharded=sharded)
+
+    @property
+    def compile_seconds(self) -> float:
+        return self.kernel.compile_seconds
 
     def run_group(self, st: AtlasState, ids: np.ndarray, progress: Progress | None = None) -> None:
         """Compute maps `ids` into `st`."""
-        rc, robot = self.config.reach, self.robot
-        n, k, m, nq = len(self.centres), rc.attempts, rc.restarts, robot.nq
-        g = len(ids)
-        masks = np.ones((g, nq), np.float32)
-        locks = np.zeros((g, nq))
-        for r, i in enumerate(ids):
-            for j, a in zip(st.joints[i], st.angles[i], strict=True):
-                if j > 0:
-                    masks[r, j - 1] = 0.0
-                    locks[r, j - 1] = a
-        best = np.full((g, n), -1, np.int32)
-        for a in range(k):
+        rc = self.config.reach
+        best = np.full((len(ids), self.n_cells), -1, np.int32)
+        for a in range(rc.attempts):
             rows, cells = np.nonzero(best < 0)
             if len(rows) == 0:
                 break
-            off = np.empty((len(rows), 2))
-            q0 = np.empty((len(rows), m, nq))
-            for r in np.unique(rows):
-                sel = rows == r
-                o, q = self._draws(int(ids[r]), a)
-                off[sel], q0[sel] = o[cells[sel]], q[cells[sel]]
-            q0 = np.where(masks[rows, None, :] > 0, q0, locks[rows, None, :])
-            xy = self.centres[cells] + off
-            tgt = np.concatenate([xy, np.full((len(rows), 1), self.z_lo[a]), np.full((len(rows), 1), self.z_hi[a])], 1)
-            res = self.batch.solve(
-                np.repeat(tgt, m, axis=0).astype(np.float32),
-                np.full(len(rows) * m, self.attempt_site[a], np.int32),
-                np.full(len(rows) * m, self.attempt_pm[a]),
-                q0.reshape(-1, nq).astype(np.float32),
-                mask=np.repeat(masks[rows], m, axis=0),
-            )
-            hit = res["ok"].reshape(-1, m).any(axis=1)
+            res = self.kernel.run(ids[rows].astype(np.int32), cells.astype(np.int32), np.full(len(rows), a, np.int32))
+            hit = res["hit"]
             best[rows[hit], cells[hit]] = a
         lab = np.where(best < 0, UNREACHABLE, np.where(best < rc.n_pm, PM, NPM)).astype(np.int8)
         ny, nx = len(st.ys), len(st.xs)
@@ -252,7 +250,7 @@ class AtlasRunner:
             st.labels_smooth[i] = smooth_labels(st.labels[i], rc.fill_neighbors)
             st.done[i] = True
         if progress is not None:
-            progress.update(g)
+            progress.update(len(ids))
 
 
 def build_atlas(
@@ -316,7 +314,7 @@ def build_atlas(
         runner.run_group(st, ids, bar)
         session["maps"] += len(ids)
         session["seconds"] = round(time.perf_counter() - t0, 3)
-        session["compile_s"] = round(runner.batch.compile_seconds, 3)
+        session["compile_s"] = round(runner.compile_seconds, 3)
         st.run = run
         if lead:
             write_atlas(partial, st)
