@@ -68,6 +68,13 @@ for step in $steps; do
         --out "$WORK/atlas2.h5" --json > "$OUT/atlas2.json" 2> "$WORK/atlas2.err"; tail -2 "$WORK/atlas2.err"
       cat "$OUT/atlas2.json"; cp "$WORK/atlas2.h5" "$OUT/atlas2.h5"
       python3 -c "from lmjx.atlas import same_content as s; print('atlas1 vs atlas2 differences:', s('$WORK/atlas1.h5', '$WORK/atlas2.h5'))" ;;
+    atlas5)
+      # Scaling on a larger atlas: K = 5 (4,900 maps), one GPU and then every local GPU.
+      for mode in --no-shard ""; do
+        JAX_COMPILATION_CACHE_DIR= timeout 280 python3 -m lmjx.cli atlas --angles 5 $mode --out "$WORK/atlas5$mode.h5" \
+          --json 2> /dev/null | tr -d '\n '; echo
+      done
+      python3 -c "from lmjx.atlas import same_content as s; print('K=5 1 vs all GPUs differences:', s('$WORK/atlas5--no-shard.h5', '$WORK/atlas5.h5'))" ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;
