@@ -405,10 +405,12 @@ def _print_planner(pl: dict) -> None:
         if key in pl:
             m = pl[key]
             first = f" (first call {m['first_call_s']:.1f} s)" if "first_call_s" in m else ""
+            d = m["target_end_diff_m"]
+            where = f"{d['median'] * 100:.1f} cm from the whole scene's (median)" if d else "nowhere (all blew up)"
+            bad = f", {m['non_finite']} simulations blew up" if m["non_finite"] else ""
             print(
                 f"    {m['what']}: {m['seconds']:.3f} s{first}, {_fmt_rate(m['steps_per_s'])} steps; target ends "
-                f"{m['target_end_diff_m']['median'] * 100:.1f} cm from the whole scene's (median), same choice: "
-                f"{m['same_choice']} (gap {m['choice_gap_m'] * 100:.1f} cm)"
+                f"{where}{bad}, same choice: {m['same_choice']} (gap {m['choice_gap_m'] * 100:.1f} cm)"
             )
     print(f"    fastest: {pl['fastest']['simulator']}, {pl['fastest']['seconds']:.3f} s")
     g = pl["cpu_greedy_action"]

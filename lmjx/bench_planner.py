@@ -95,10 +95,14 @@ def bench_planner(
     }
 
     def agreement(final: np.ndarray) -> dict:
+        finite = np.isfinite(final).all(axis=(1, 2))  # a simulation that blew up scores as lost
+        final = np.where(finite[:, None, None], final, 1e3)
         s = score(sc, robot, final)
-        d = np.hypot(*(final[:, 0, :2] - final_cpu[:, 0, :2]).T)
+        d = np.hypot(*(final[:, 0, :2] - final_cpu[:, 0, :2]).T)[finite]
+        stats = {"median": float(np.median(d)), "p90": float(np.quantile(d, 0.9))} if len(d) else None
         return {
-            "target_end_diff_m": {"median": float(np.median(d)), "p90": float(np.quantile(d, 0.9))},
+            "non_finite": int((~finite).sum()),
+            "target_end_diff_m": stats,
             "same_choice": bool(np.argmin(s_cpu) == np.argmin(s)),
             # how much worse (by the whole-scene simulation) the action it picks is than the best
             "choice_gap_m": float(s_cpu[np.argmin(s)] - s_cpu.min()),

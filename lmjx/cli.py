@@ -59,10 +59,12 @@ def _add_device(p: argparse.ArgumentParser) -> None:
 def _add_sim(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--sim",
-        choices=("cpu", "cpu-near", "mjx"),
+        choices=("cpu", "cpu-near"),
         default="cpu",
-        help="the planner's simulator: cpu (C MuJoCo, whole scene, all host cores; default), cpu-near (only the "
-        "target and its 3 nearest objects), mjx (MuJoCo MJX on the accelerator)",
+        help="the planner's simulator, C MuJoCo on all host cores: cpu (the whole scene; default) or cpu-near (only "
+        "the target and its 3 nearest objects; 2.5x faster).  MuJoCo MJX is measured in lmjx bench but not offered: "
+        "at the planner's batch sizes it was slower than C MuJoCo on the host cores and lost accuracy "
+        "(benchmarks/RESULTS.md)",
     )
 
 

@@ -23,6 +23,7 @@ from .progress import Progress
 from .robot import Robot
 from .trial import make_simulator, run_trial, setup_trial
 
+ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
 RECORD_KEYS = ("failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s")
 
 # The paper's figures (Section V), for the report.
@@ -217,7 +218,15 @@ def plots(records: list[dict], out: Path) -> None:
                     if (r["failure"], r["scenario"], r["asm"], r["success"]) == (f, s, a, True)
                 ]
                 if n:
-                    ax.hist(n, bins=np.arange(0.5, max(n) + 1.5), histtype="step", density=True, label=a, linewidth=1.8)
+                    ax.hist(
+                        n,
+                        bins=np.arange(0.5, max(n) + 1.5),
+                        histtype="step",
+                        density=True,
+                        label=a,
+                        linewidth=1.8,
+                        color=ASM_COLORS.get(a),
+                    )
             ax.set_title(f"{f}, scenario {s}", fontsize=10)
             ax.set_xlabel("actions to complete")
             if j == 0:
