@@ -206,6 +206,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
 
     p = sub.add_parser(
+        "scenarios",
+        help="pictures and descriptions of the three evaluation scenarios",
+        description="Print each scenario's description and write <out>/scenario<N>.png: a MuJoCo rendering of the "
+        "scene (the arm at the case-2 park pose) beside a top-down diagram of the layout.  Rendering needs OpenGL "
+        "(on a headless machine: MUJOCO_GL=osmesa with OSMesa installed, or MUJOCO_GL=egl on a GPU); without it "
+        "only the diagram is drawn.",
+    )
+    p.add_argument("--out", default=".", help="folder for the pictures (default: the current folder)")
+    p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
+
+    p = sub.add_parser(
         "atlas",
         help="failure atlas: PM and NPM+PM areas for every 2- and 3-joint lock",
         description="For every set of locked joints of the given sizes (21 pairs, 35 triples) and K lock angles per "
@@ -628,6 +639,32 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .actions import park_pose
+    from .failure import parse_failure
+    from .fileio import check_writable
+    from .render import gl_problem
+    from .robot import load_robot
+    from .scenario_figure import scenario_picture
+    from .scenarios import SCENARIOS, sample_layout, scenario
+
+    out = Path(args.out)
+    check_writable(out / "scenario1.png", "pictures")
+    robot = load_robot()
+    problem = gl_problem()
+    if problem is not None:
+        print(f"note: drawing the diagrams only: {problem}", file=sys.stderr)
+    q = park_pose(robot, parse_failure("case2", robot))
+    for n in sorted(SCENARIOS):
+        sc = scenario(n)
+        path = out / f"scenario{n}.png"
+        scenario_picture(robot, sc, sample_layout(sc, args.seed), q, path, with_render=problem is None)
+        print(f"scenario {n}: {sc.title}\n  {sc.description}\n  picture: {path}")
+    return 0
+
+
 def cmd_atlas(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -720,6 +757,7 @@ COMMANDS = {
     "info": cmd_info,
     "bench": cmd_bench,
     "atlas": cmd_atlas,
+    "scenarios": cmd_scenarios,
 }
 
 

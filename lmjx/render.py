@@ -43,7 +43,7 @@ class View:
         return cam
 
 
-TRIAL_VIEW = View()
+TRIAL_VIEW = View(lookat=(0.36, 0.24, 0.22), distance=1.5, azimuth=212.0, elevation=-34.0)
 
 
 def gl_problem() -> str | None:
@@ -103,7 +103,9 @@ class Recorder:
             self.frames.append(d.qpos.copy())
             self._next = d.time + self.period
 
-    def images(self, width: int = 480, height: int = 360, every: int = 1) -> list[np.ndarray]:
+    def images(
+        self, width: int = 480, height: int = 360, every: int = 1, pick: list[int] | None = None
+    ) -> list[np.ndarray]:
         scene = self.world.scene
         assert scene is not None
         m = scene.model
@@ -111,7 +113,7 @@ class Recorder:
         cam = TRIAL_VIEW.camera()
         out = []
         with mujoco.Renderer(m, height, width) as r:
-            for q in self.frames[::every]:
+            for q in [self.frames[i] for i in pick] if pick is not None else self.frames[::every]:
                 d.qpos[:] = q
                 mujoco.mj_forward(m, d)
                 r.update_scene(d, camera=cam)
@@ -121,10 +123,11 @@ class Recorder:
     def write(self, path: str) -> None:
         ext = Path(path).suffix.lower()
         if ext == ".png":
-            n = 8
-            step = max(1, len(self.frames) // n)
-            imgs = self.images(320, 240, every=step)[:n]
-            strip = np.concatenate(imgs, axis=1) if imgs else np.zeros((240, 320, 3), np.uint8)
+            n = 8  # two rows of four frames
+            pick = sorted({round(x) for x in np.linspace(0, len(self.frames) - 1, n)}) if self.frames else []
+            imgs = self.images(400, 300, pick=pick)  # the first and the last frame included
+            imgs += [np.zeros((300, 400, 3), np.uint8)] * (n - len(imgs))
+            strip = np.concatenate([np.concatenate(imgs[:4], axis=1), np.concatenate(imgs[4:], axis=1)], axis=0)
             from PIL import Image
 
             with atomic_path(path) as tmp:

@@ -74,7 +74,9 @@ def test_interrupt_leaves_no_file(tmp_path):
             "--failure",
             "case2",
             "--cell",
-            "0.01",
+            "0.005",
+            "--restarts",
+            "32",
             "--out",
             str(out),
         ],
@@ -83,7 +85,8 @@ def test_interrupt_leaves_no_file(tmp_path):
         text=True,
         env=ENV,
     )
-    time.sleep(12)
+    time.sleep(8)  # minutes of work (48,000 cells x 32 restarts): it is surely still running
+    assert p.poll() is None, "the map finished before it could be interrupted"
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130, err

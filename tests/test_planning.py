@@ -172,3 +172,19 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
         {x["seed"] for x in records if x["asm"] == "greedy"}
     )
+
+
+def test_scenarios_command_draws_without_opengl(tmp_path):
+    # CI has no display and no OSMesa: the diagrams must still come
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")}
+    r = subprocess.run([sys.executable, "-m", "lmjx.cli", "scenarios", "--out", str(tmp_path)], env=env,
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    for n in (1, 2, 3):
+        data = (tmp_path / f"scenario{n}.png").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+        assert f"scenario {n}:" in r.stdout
+    bad = subprocess.run([sys.executable, "-m", "lmjx.cli", "scenarios", "--out", "/proc/nope"], env=env,
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
