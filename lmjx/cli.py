@@ -761,10 +761,38 @@ COMMANDS = {
 }
 
 
+def threading_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _on_sigint(signum: int, frame: object) -> None:
+    """Ctrl-C: unwind normally (temporary files are removed on the way out), and if anything
+    swallows the interrupt, leave anyway a few seconds later."""
+
+    def leave() -> None:
+        print("lmjx: interrupted", file=sys.stderr)
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
+
+    import threading
+
+    timer = threading.Timer(10.0, leave)
+    timer.daemon = True
+    timer.start()
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    import signal
+
     from .errors import LmjxError
+
+    if threading_main():
+        signal.signal(signal.SIGINT, _on_sigint)
 
     try:
         if getattr(args, "device", "auto") != "auto":
