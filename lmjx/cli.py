@@ -268,11 +268,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _set_device(choice: str) -> None:
-    """Pin JAX to a platform before it initializes; fail in one line if none is there."""
+def _set_device(choice: str, probe: bool = True) -> None:
+    """Pin JAX to a platform before it initializes; fail in one line if none is there.
+    Without `probe` the backend is left uninitialized (jax.distributed must come first)."""
     from .errors import LmjxError
 
     os.environ["JAX_PLATFORMS"] = "cpu" if choice == "cpu" else "cuda"
+    if not probe:
+        return
     import jax
 
     try:
@@ -796,7 +799,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         if getattr(args, "device", "auto") != "auto":
-            _set_device(args.device)
+            _set_device(args.device, probe=not getattr(args, "coordinator", None))
         return COMMANDS[args.command](args)
     except LmjxError as e:
         print(f"lmjx {args.command}: error: {e}", file=sys.stderr)
