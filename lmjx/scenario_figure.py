@@ -39,7 +39,7 @@ def diagram(ax, sc: Scenario, layout: Layout) -> None:
                              label="target" if target else ("movable box" if i == 1 else None)))  # fmt: skip
     ax.plot([0], [0], marker="o", color="k", ms=8)
     ax.annotate("robot base", (0, 0), (0.02, -0.05), fontsize=8)
-    ax.set_xlim(-0.05, 0.8)
+    ax.set_xlim(-0.05, 0.9)
     ax.set_ylim(-0.15, 0.65)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m] (forward)")

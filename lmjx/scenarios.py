@@ -118,9 +118,9 @@ def _scenario2() -> Scenario:
     return Scenario(
         2,
         "tunnel",
-        "A fixed wall across the table with a roofed opening (a tunnel 36 cm wide and 25 cm "
-        "high through a 1 cm wall): the target starts on the far side; the goal region begins "
-        "at the tunnel's exit on the near side; no object can go around the wall.",
+        "A fixed wall 74 cm long across the table in front of the robot with a roofed opening (a "
+        "tunnel 36 cm wide and 25 cm high through a 1 cm wall): the target starts on the far side; "
+        "the goal region begins at the tunnel's exit on the near side.",
         _target(0.47, 0.40),
         (),
         fixed=walls,
