@@ -258,11 +258,9 @@ def build_atlas(
     config: AtlasConfig,
     out: str | Path,
     progress: bool = True,
-    stop_after_groups: int | None = None,
     sharded: bool = True,
 ) -> AtlasState:
-    """Compute (or finish) the atlas into `out`.  `stop_after_groups` ends the run early
-    after that many groups (what an interruption leaves behind; for tests)."""
+    """Compute (or finish) the atlas into `out`."""
     import jax
 
     config.validate(robot)
@@ -308,9 +306,7 @@ def build_atlas(
         "seconds": 0.0,
     }
     run["sessions"].append(session)
-    for count, ids in enumerate(todo):
-        if stop_after_groups is not None and count >= stop_after_groups:
-            break
+    for ids in todo:
         runner.run_group(st, ids, bar)
         session["maps"] += len(ids)
         session["seconds"] = round(time.perf_counter() - t0, 3)
@@ -334,10 +330,7 @@ def same_content(a: str | Path, b: str | Path) -> list[str]:
         for k in ("schema", "version", "params", "robot_hash", "complete", "cell_m"):
             if fa.attrs.get(k) != fb.attrs.get(k):
                 diffs.append(f"attribute {k}")
-        names = sorted(set(fa) | set(fb) - {"run"})
-        for name in names:
-            if name == "run":
-                continue
+        for name in sorted((set(fa) | set(fb)) - {"run"}):
             if name not in fa or name not in fb:
                 diffs.append(f"{name} missing")
             elif not np.array_equal(fa[name][...], fb[name][...], equal_nan=fa[name].dtype.kind == "f"):

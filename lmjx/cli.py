@@ -56,7 +56,12 @@ def _add_device(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_sim(p: argparse.ArgumentParser) -> None:
+def _add_planner_options(p: argparse.ArgumentParser) -> None:
+    """The planner's options, shared by plan and evaluate."""
+    p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget per task (default 30)")
+    p.add_argument(
+        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
+    )
     p.add_argument(
         "--sim",
         choices=("cpu", "cpu-near"),
@@ -143,11 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", help="refuse the map unless it was built for this failure")
     p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
-    p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget (default 30)")
-    _add_sim(p)
-    p.add_argument(
-        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
-    )
+    _add_planner_options(p)
     p.add_argument("--render", help="write a rendering of the trial: .png (frame strip), .gif or .mp4")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     _add_device(p)
@@ -166,11 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
     p.add_argument("--maps", default="maps", help="folder of <failure>.h5 map files (default maps)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
-    p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget per task (default 30)")
-    _add_sim(p)
-    p.add_argument(
-        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
-    )
+    _add_planner_options(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)

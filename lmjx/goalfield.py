@@ -74,16 +74,12 @@ class GoalField:
 
 def _inside(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Points (n, 2) inside a convex polygon (4, 2) given counter-clockwise or clockwise."""
-    sign = None
+    u, w = poly[1] - poly[0], poly[2] - poly[1]
+    sign = 1.0 if u[0] * w[1] - u[1] * w[0] > 0 else -1.0  # the polygon's orientation
     out = np.ones(len(pts), bool)
     for i in range(len(poly)):
         e = poly[(i + 1) % len(poly)] - poly[i]
-        c = e[0] * (pts[:, 1] - poly[i, 1]) - e[1] * (pts[:, 0] - poly[i, 0])
-        if sign is None:
-            u, w = poly[1] - poly[0], poly[2] - poly[1]
-            area = u[0] * w[1] - u[1] * w[0]
-            sign = 1.0 if area > 0 else -1.0
-        out &= sign * c >= 0
+        out &= sign * (e[0] * (pts[:, 1] - poly[i, 1]) - e[1] * (pts[:, 0] - poly[i, 0])) >= 0
     return out
 
 

@@ -19,6 +19,7 @@ from mujoco import rollout
 
 from .actions import Action, controls
 from .robot import Robot
+from .scenarios import Scenario
 from .scene import Scene, build_scene, set_state
 
 
@@ -26,6 +27,23 @@ def nearest_objects(obj_qpos: np.ndarray, k: int) -> list[int]:
     """The target (0) and the k - 1 objects nearest to it (observed centres)."""
     dist = np.hypot(*(obj_qpos[:, :2] - obj_qpos[0, :2]).T)
     return [0, *[int(i) for i in np.argsort(dist, kind="stable") if i != 0][: k - 1]]
+
+
+def subscenario(sc: Scenario, chosen: list[int]) -> Scenario:
+    """The scenario with only the movable objects `chosen` (the first becomes the target)."""
+    return replace(sc, target=sc.movable[chosen[0]], obstacles=tuple(sc.movable[i] for i in chosen[1:]))
+
+
+def padded_controls(actions: list[Action], physics_dt: float, settle: float) -> np.ndarray:
+    """Servo controls (len(actions), steps, nu) of every action, each held at its last control
+    until the longest one ends."""
+    ctrl = [controls(a, physics_dt, settle) for a in actions]
+    steps = max(len(c) for c in ctrl)
+    out = np.zeros((len(actions), steps, ctrl[0].shape[1]))
+    for i, c in enumerate(ctrl):
+        out[i, : len(c)] = c
+        out[i, len(c) :] = c[-1]
+    return out
 
 
 class Simulator(Protocol):
@@ -61,14 +79,21 @@ class CpuSimulator:
         if self.k is not None and robot is None:
             raise ValueError("k_objects needs the robot (to build the reduced scenes)")
         self.robot = robot
-        self._scenes: dict[tuple[int, ...], tuple[Scene, list[mujoco.MjData]]] = {}
-        self._use(scene)
+        self.full = scene
+        # per set of simulated objects (None: all): the scene and the threads' data
+        self._built: dict[tuple[int, ...] | None, tuple[Scene, list[mujoco.MjData]]] = {}
+        self._select(None)
         self.steps_run = 0
 
-    def _use(self, scene: Scene) -> None:
-        self.scene = scene
-        self.datas = [mujoco.MjData(scene.model) for _ in range(self.threads)]
-        self.nstate = mujoco.mj_stateSize(scene.model, self.spec)
+    def _select(self, chosen: tuple[int, ...] | None) -> None:
+        if chosen not in self._built:
+            assert chosen is None or self.robot is not None
+            scene = self.full if chosen is None else build_scene(
+                self.robot, subscenario(self.full.scenario, list(chosen)), self.full.physics
+            )  # fmt: skip
+            self._built[chosen] = (scene, [mujoco.MjData(scene.model) for _ in range(self.threads)])
+        self.scene, self.datas = self._built[chosen]
+        self.nstate = mujoco.mj_stateSize(self.scene.model, self.spec)
 
     def initial_state(self, robot_q: np.ndarray, obj_qpos: np.ndarray) -> np.ndarray:
         d = self.datas[0]
@@ -83,17 +108,7 @@ class CpuSimulator:
         if self.k is None:
             return self._simulate(robot_q, obj_qpos, actions)
         chosen = nearest_objects(obj_qpos, self.k)
-        key = tuple(chosen)
-        if key not in self._scenes:
-            full = self._scenes.get((), (self.scene, self.datas))
-            self._scenes[()] = full
-            sc = full[0].scenario
-            sub = replace(sc, target=sc.movable[chosen[0]], obstacles=tuple(sc.movable[i] for i in chosen[1:]))
-            assert self.robot is not None
-            self._use(build_scene(self.robot, sub, full[0].physics))
-            self._scenes[key] = (self.scene, self.datas)
-        self.scene, self.datas = self._scenes[key]
-        self.nstate = mujoco.mj_stateSize(self.scene.model, self.spec)
+        self._select(tuple(chosen))
         part = self._simulate(robot_q, obj_qpos[chosen], actions)
         final = np.repeat(obj_qpos[None], len(actions), axis=0).astype(np.float64)
         final[:, chosen] = part
@@ -101,12 +116,8 @@ class CpuSimulator:
 
     def _simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
         m = self.scene.model
-        ctrl = [controls(a, m.opt.timestep, self.settle) for a in actions]
-        n = max(len(c) for c in ctrl)
-        batch = np.zeros((len(actions), n, m.nu))
-        for i, c in enumerate(ctrl):  # pad by holding the last control
-            batch[i, : len(c)] = c
-            batch[i, len(c) :] = c[-1]
+        batch = padded_controls(actions, m.opt.timestep, self.settle)
+        n = batch.shape[1]
         state = np.repeat(self.initial_state(robot_q, obj_qpos)[None], len(actions), axis=0)
         for start in range(0, n, self.segment):
             seg = batch[:, start : start + self.segment]

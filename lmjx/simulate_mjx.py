@@ -15,18 +15,17 @@ Everything else (time step, servos, friction, masses, contact groups) is the CPU
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
 
-from .actions import Action, controls
+from .actions import Action
 from .robot import Robot
 from .scenarios import Scenario
-from .scene import Physics, Scene, build_scene, set_state
+from .scene import Physics, build_scene, set_state
+from .simulate import nearest_objects, padded_controls, subscenario
 
 MJX_PHYSICS = Physics(table_as_plane=True, solver_iterations=6, max_contact_points=12)
 
@@ -51,12 +50,6 @@ class MjxSimulator:
         self.physics = physics
         self._step = jax.jit(self._segment_fn)
         self.steps_run = 0
-        self.compiled_shapes: set[tuple] = set()
-
-    def _scene_for(self, chosen: list[int]) -> Scene:
-        sc = self.scenario
-        sub = replace(sc, target=sc.movable[chosen[0]], obstacles=tuple(sc.movable[i] for i in chosen[1:]))
-        return build_scene(self.robot, sub, self.physics)
 
     @staticmethod
     def _segment_fn(m: mjx.Model, d: mjx.Data, ctrl: jnp.ndarray) -> mjx.Data:
@@ -75,9 +68,8 @@ class MjxSimulator:
         n = len(actions)
         if n == 0:
             return np.zeros((0, len(obj_qpos), 7))
-        dist = np.hypot(*(obj_qpos[:, :2] - obj_qpos[0, :2]).T)
-        chosen = [0, *[int(i) for i in np.argsort(dist)[1:] if i != 0][: self.k - 1]]
-        scene = self._scene_for(chosen)
+        chosen = nearest_objects(obj_qpos, self.k)
+        scene = build_scene(self.robot, subscenario(self.scenario, chosen), self.physics)
         m = scene.model
         host = mujoco.MjData(m)
         set_state(scene, host, robot_q, obj_qpos[chosen])
@@ -85,16 +77,14 @@ class MjxSimulator:
         d0 = mjx.make_data(mx).replace(
             qpos=jnp.asarray(host.qpos, jnp.float32), ctrl=jnp.asarray(host.ctrl, jnp.float32)
         )
-        ctrl = [controls(a, m.opt.timestep, self.settle) for a in actions]
-        steps = -(-max(len(c) for c in ctrl) // self.segment) * self.segment
-        out = np.empty((len(obj_qpos) * 0 + n, len(chosen), 7))
+        ctrl = padded_controls(actions, m.opt.timestep, self.settle)
+        steps = -(-ctrl.shape[1] // self.segment) * self.segment  # whole segments, last controls held
+        ctrl = np.concatenate([ctrl, np.repeat(ctrl[:, -1:], steps - ctrl.shape[1], axis=1)], axis=1)
+        out = np.empty((n, len(chosen), 7))
         for start in range(0, n, self.batch):
             part = ctrl[start : start + self.batch]
-            u = np.zeros((self.batch, steps, m.nu), np.float32)
-            for i, c in enumerate(part):
-                u[i, : len(c)] = c
-                u[i, len(c) :] = c[-1]
-            u[len(part) :] = u[0]
+            u = np.repeat(part[:1], self.batch, axis=0).astype(np.float32)  # the batch padded with the first
+            u[: len(part)] = part
             d = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (self.batch, *x.shape)), d0)
             for s in range(0, steps, self.segment):
                 d = self._step(mx, d, jnp.asarray(u[:, s : s + self.segment]))
