@@ -9,12 +9,13 @@ with `jax.vmap`.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .kinematics import Pose, point_in_world
+from .kinematics import Pose, body_poses, point_in_world
 from .math3 import Mat, Vec, cmat, cvec, mtvec, to_array, vsub
 from .model import ArmModel
 
@@ -157,3 +158,24 @@ def table_clearance(arm: ArmModel, a_w: Vec, b_w: Vec, unroll: bool = True) -> j
         [float(h) for h in arm.table_half],
         unroll=unroll,
     )
+
+
+class ArmClearance(NamedTuple):
+    """Clearances of one configuration: smallest over capsule pairs and over capsules-table."""
+
+    self_clearance: jnp.ndarray  # [m], +inf when no pair is checked
+    table_clearance: jnp.ndarray  # [m]
+
+
+def arm_clearance(arm: ArmModel, q: jnp.ndarray, unroll: bool = True) -> ArmClearance:
+    """Self and table clearance of the arm at joint angles q (nj,): what C MuJoCo's collision
+    pass over the robot model tests (its contacts exist exactly where one is negative)."""
+    poses = body_poses(arm.tree, [q[j] for j in range(q.shape[0])])
+    caps = list(range(len(arm.cap_r)))
+    a_w, b_w = capsule_endpoints(arm, poses, caps, q[0])
+    tab = np.asarray(arm.table_caps)
+    table = jnp.min(
+        table_clearance(arm, tuple(x[tab] for x in a_w), tuple(x[tab] for x in b_w), unroll), initial=jnp.inf
+    )
+    selfc = jnp.min(self_clearance(arm, a_w, b_w)) if len(arm.self_pairs) else jnp.asarray(jnp.inf, q.dtype)
+    return ArmClearance(selfc, table)

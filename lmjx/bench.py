@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .baselines import BaselineMissingError, pk_chain, pybullet_ik_loop, pybullet_panda
-from .errors import ConfigError
+from .errors import ConfigError, LmjxError
 from .failure import parse_failure
 from .fileio import check_writable, write_text_atomic
 from .ik_batch import IKBatch, backend, default_ik_settings, device_description
@@ -299,14 +299,29 @@ def run_bench(args: argparse.Namespace) -> int:
         ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
     if "planner" in sections:
         from .bench_planner import bench_planner
+        from .trial import resolve_simulator
 
-        n = args.candidates or (8 if args.quick else 256)
+        sim_name, why = resolve_simulator(args.sim)
+        print(f"lmjx bench: simulator {sim_name} ({why})", file=sys.stderr)
+        if args.candidates:
+            try:
+                counts = sorted({int(c) for c in args.candidates.split(",")})
+            except ValueError:
+                raise ConfigError(f"--candidates takes counts such as 256,1024, got '{args.candidates}'") from None
+            if not counts or counts[0] < 1:
+                raise ConfigError(f"--candidates must be positive, got '{args.candidates}'")
+        else:
+            counts = [8] if args.quick else ([256, 1024, 4096] if sim_name == "gpu" else [256])
         if Path(args.planner_map).exists():
-            report["planner"] = bench_planner(robot, args.planner_map, n, args.repeats, use_mjx=on_gpu)
+            report["planner"] = bench_planner(robot, args.planner_map, counts, args.repeats, sim_name)
+            report["planner"]["simulator_reason"] = why
         else:
             report["planner"] = {"skipped": f"no map at {args.planner_map} (make run builds maps/case2.h5)"}
-        if "speedup_mjx_vs_cpu" in report["planner"]:
-            ratios["mjx_greedy_scoring_vs_c_mujoco_all_cores"] = report["planner"]["speedup_mjx_vs_cpu"]
+        for r in report["planner"].get("rows", []):
+            if r["simulator"] == "gpu":
+                ratios[f"gpu_greedy_scoring_{r['candidates']}_vs_c_mujoco_all_cores"] = r["speedup_vs_cpu"]
+    if "agreement" in sections:
+        report["agreement"] = bench_agreement(robot, args)
     report["ratios"] = ratios
 
     if args.out:
@@ -326,12 +341,51 @@ def run_bench(args: argparse.Namespace) -> int:
             print(f"  Greedy scoring: skipped ({report['planner']['skipped']})")
         else:
             _print_planner(report["planner"])
+    if "agreement" in report:
+        _print_agreement(report["agreement"])
     for k, v in ratios.items():
         print(f"  {k}: {v:,.1f}x")
     return 0
 
 
-SECTIONS = ("ik", "maps", "rollouts", "planner")
+def _print_agreement(ag: dict) -> None:
+    if "skipped" in ag:
+        print(f"  agreement: skipped ({ag['skipped']})")
+        return
+    d = ag["target_end_diff_m"]
+    print(
+        f"  agreement of {ag['simulator']} with C MuJoCo over {ag['decisions']} Greedy decisions "
+        f"({ag['candidates']:,} candidates): same action {ag['same_choice'] * 100:.1f} %, same or within 1 cm "
+        f"{ag['same_or_within_1cm'] * 100:.1f} %; target ends {d['median'] * 100:.2f} / {d['p90'] * 100:.2f} cm "
+        f"(median / p90) apart; {ag['non_finite']} non-finite"
+    )
+
+
+SECTIONS = ("ik", "maps", "rollouts", "planner", "agreement")
+
+
+def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
+    """The planner's decisions with the tested simulator against C MuJoCo's (lmjx.agreement)."""
+    from .agreement import decision_states, measure
+    from .evaluate import load_maps
+    from .trial import make_simulator, resolve_simulator
+
+    sim_name, why = resolve_simulator(args.sim)
+    if sim_name == "cpu":
+        return {"skipped": f"the simulator under test would be the reference itself ({why}); use --sim gpu or cpu-near"}
+    failures = ("case1", "case2")
+    try:
+        maps = load_maps(robot, failures, Path(args.maps))
+    except LmjxError as e:
+        return {"skipped": str(e)}
+    scenarios = (1, 2, 3)
+    seeds = 2 if args.quick else args.agreement_seeds
+    decisions = decision_states(robot, maps, scenarios, seeds, 3, 8 if args.quick else 64)
+    tested = {s: make_simulator(robot, s, sim_name) for s in scenarios}
+    reference = {s: make_simulator(robot, s, "cpu") for s in scenarios}
+    out = measure(robot, decisions, tested, reference)
+    out |= {"simulator": sim_name, "maps": args.maps, "seeds": seeds, "depth": 3}
+    return out
 
 
 def parse_sections(text: str) -> set[str]:
@@ -395,23 +449,26 @@ def _print_rollouts(report: dict) -> None:
 
 
 def _print_planner(pl: dict) -> None:
-    c = pl["cpu"]
     print(
-        f"  Greedy scoring, scenario {pl['scenario']} ({pl['failure']}), {pl['candidates']} candidate actions "
-        f"of {pl['action_seconds_mean']:.1f} s on average:"
+        f"  Greedy scoring, scenario {pl['scenario']} ({pl['failure']}), candidate actions of "
+        f"{pl['action_seconds_mean']:.1f} s on average ({pl['distinct_edges']} distinct edges):"
     )
-    print(f"    {c['what']}: {c['seconds']:.3f} s, {_fmt_rate(c['steps_per_s'])} steps")
-    for key in ("cpu_near", "mjx"):
-        if key in pl:
-            m = pl[key]
-            first = f" (first call {m['first_call_s']:.1f} s)" if "first_call_s" in m else ""
-            d = m["target_end_diff_m"]
-            where = f"{d['median'] * 100:.1f} cm from the whole scene's (median)" if d else "nowhere (all blew up)"
-            bad = f", {m['non_finite']} simulations blew up" if m["non_finite"] else ""
-            print(
-                f"    {m['what']}: {m['seconds']:.3f} s{first}, {_fmt_rate(m['steps_per_s'])} steps; target ends "
-                f"{where}{bad}, same choice: {m['same_choice']} (gap {m['choice_gap_m'] * 100:.1f} cm)"
-            )
-    print(f"    fastest: {pl['fastest']['simulator']}, {pl['fastest']['seconds']:.3f} s")
-    g = pl["cpu_greedy_action"]
-    print(f"    one Greedy decision on the CPU ({g['candidates']} candidates, transits included): {g['seconds']:.2f} s")
+    for r in pl["rows"]:
+        extra = ""
+        if "capture_s" in r:
+            extra += f" (capture {r['capture_s']:.1f} s), {r['speedup_vs_cpu']:.1f}x C MuJoCo"
+        if "same_choice" in r:
+            d = r["target_end_diff_m"]
+            where = (f"target ends {d['median'] * 100:.2f} / {d['p90'] * 100:.2f} cm (median / p90) from C MuJoCo's"
+                     if d else "nothing finite")  # fmt: skip
+            bad = f", {r['non_finite']} non-finite" if r["non_finite"] else ""
+            extra += f"; {where}{bad}, same choice: {r['same_choice']} (gap {r['choice_gap_m'] * 100:.1f} cm)"
+        print(
+            f"    {r['simulator']:>8} {r['candidates']:>5,}: {r['seconds']:.3f} s, {_fmt_rate(r['steps_per_s'])} "
+            f"steps{extra}"
+        )
+    g = pl["decision"]
+    print(
+        f"    one Greedy decision ({g['simulator']}, {g['candidates']} candidates, transits included): "
+        f"{g['seconds']:.2f} s, of which simulation {g['simulation_seconds']:.2f} s"
+    )

@@ -1,12 +1,14 @@
-"""`lmjx bench` planner section: Greedy's scoring of candidate actions, MJX on the accelerator
-against C MuJoCo (`mujoco.rollout`) on all host cores, on the same actions from the same
-observed state of Scenario 3.
+"""`lmjx bench` planner section: Greedy's scoring of candidate actions, the GPU simulator
+(MuJoCo Warp) against C MuJoCo (`mujoco.rollout`) on all host cores, on the same actions
+from the same observed state of Scenario 3, in one run.
 
-Figures: seconds to simulate and score N candidates (median of repeats, compile apart),
-physics steps per second, and how far the two simulators agree (target end positions,
-scores, and whether they would pick the same action).  Also the time of one whole Greedy
-decision on the CPU (transits + simulation + scoring) with the planner's default 32
-candidates, the figure the issue's CPU goal is about.
+Figures, per candidate count: seconds to simulate the candidates (median of repeats;
+capture and compilation apart), physics steps per second, and how closely each simulator
+agrees with C MuJoCo's whole scene (target end positions: median and 90th percentile
+difference; whether it picks the same action; how much worse, by C MuJoCo's score, the
+action it picks is: the choice gap).  Also C MuJoCo with only the target's nearest objects
+(the `cpu-near` approximation), and one whole Greedy decision (transits + simulation +
+scoring) with the simulator's default candidate count.
 """
 
 from __future__ import annotations
@@ -20,15 +22,22 @@ import numpy as np
 
 from .actions import TransitPlanner
 from .errors import ConfigError
+from .executor import Observation
 from .mapfile import load_map
 from .planner import Planner, PlannerConfig, edges_over_target, score
 from .robot import Robot
 from .scenarios import sample_layout, scenario
 from .scene import build_scene, object_qpos
 from .simulate import CpuSimulator
+from .trial import DEFAULT_CANDIDATES, make_simulator
+
+LONG_REFERENCE = 1024  # C MuJoCo above this many candidates is timed once (it takes tens of seconds)
 
 
-def _candidates(robot: Robot, map_path: str, scenario_number: int, n: int, seed: int):
+def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int, seed: int):
+    """Up to n Greedy candidates from the park pose for a scenario's seeded layout (repeated
+    when fewer distinct edges pass over the target): the map, scenario, scene, objects,
+    transit planner and actions."""
     mf = load_map(map_path)
     if mf.edges is None or mf.reach is None:
         raise ConfigError(f"{map_path} has no kinodynamic map (edges); build it with lmjx build-map")
@@ -39,114 +48,117 @@ def _candidates(robot: Robot, map_path: str, scenario_number: int, n: int, seed:
     tp = TransitPlanner(robot, mf.failure)
     edges = edges_over_target(mf.edges, mf.reach, objects[0, :2], float(sc.target.half[0]), 0.01)
     order = np.random.default_rng(seed).permutation(edges)
-    acts = []
-    for e in order:
-        a = tp.action(mf.edges, int(e), tp.park)
-        if a is not None:
-            acts.append(a)
-        if len(acts) == n:
-            break
+    acts = tp.actions(mf.edges, order, tp.park, n)
     if not acts:
         raise ConfigError(f"{map_path}: no feasible action over the target in scenario {scenario_number}")
-    while len(acts) < n:  # fewer distinct edges than asked: repeat (the work is what is timed)
-        acts.append(acts[len(acts) % max(1, len(acts))])
+    acts = [acts[i % len(acts)] for i in range(n)]  # fewer distinct edges than asked: repeat (the work is timed)
     return mf, sc, scene, objects, tp, acts
+
+
+def agreement(sc, robot: Robot, final: np.ndarray, reference: np.ndarray) -> dict:
+    """How `final` (n, objects, 7) agrees with the reference simulation of the same actions."""
+    finite = np.isfinite(final).all(axis=(1, 2))  # a simulation that blew up scores as lost
+    s_ref = score(sc, robot, reference)
+    s = score(sc, robot, np.where(finite[:, None, None], final, 1e3))
+    d = np.hypot(*(final[:, 0, :2] - reference[:, 0, :2]).T)[finite]
+    return {
+        "non_finite": int((~finite).sum()),
+        "target_end_diff_m": {"median": float(np.median(d)), "p90": float(np.quantile(d, 0.9))} if len(d) else None,
+        "same_choice": bool(np.argmin(s_ref) == np.argmin(s)),
+        "choice_gap_m": float(s_ref[np.argmin(s)] - s_ref.min()),
+    }
 
 
 def bench_planner(
     robot: Robot,
     map_path: str,
-    candidates: int = 256,
+    counts: list[int],
     repeats: int = 3,
-    use_mjx: bool = False,
+    sim_name: str = "cpu",
     scenario_number: int = 3,
     seed: int = 0,
 ) -> dict:
     if not Path(map_path).exists():
         raise ConfigError(f"no map at {map_path}; build one with lmjx build-map --failure case2 --out {map_path}")
-    mf, sc, scene, objects, tp, acts = _candidates(robot, map_path, scenario_number, candidates, seed)
+    mf, sc, scene, objects, tp, acts = candidate_actions(robot, map_path, scenario_number, max(counts), seed)
     q0 = tp.park
     out: dict = {
         "scenario": scenario_number,
         "failure": mf.failure.spec,
-        "candidates": candidates,
+        "counts": counts,
+        "distinct_edges": len({a.edge for a in acts}),
         "action_seconds_mean": float(np.mean([a.duration for a in acts])),
+        "rows": [],
     }
 
-    def timed(sim) -> tuple[float, np.ndarray, int]:
-        sim.simulate(q0, objects, acts[:1])  # builds scenes / compiles
+    def timed(sim, n: int, reps: int) -> tuple[float, np.ndarray, int]:
         times, final = [], None
-        for _ in range(repeats):
+        for _ in range(reps):
             sim.steps_run = 0
             t0 = time.perf_counter()
-            final = sim.simulate(q0, objects, acts)
+            final = sim.simulate(q0, objects, acts[:n])
             times.append(time.perf_counter() - t0)
         return statistics.median(times), final, sim.steps_run
 
     cpu = CpuSimulator(scene)
-    t, final_cpu, steps = timed(cpu)
-    s_cpu = score(sc, robot, final_cpu)
-    out["cpu"] = {
-        "what": f"C MuJoCo mujoco.rollout, {cpu.threads} threads ({os.cpu_count()} cores), whole scene "
-        f"({scene.n_objects} objects, box table)",
-        "seconds": t,
-        "steps": steps,
-        "steps_per_s": steps / t,
-    }
-
-    def agreement(final: np.ndarray) -> dict:
-        finite = np.isfinite(final).all(axis=(1, 2))  # a simulation that blew up scores as lost
-        final = np.where(finite[:, None, None], final, 1e3)
-        s = score(sc, robot, final)
-        d = np.hypot(*(final[:, 0, :2] - final_cpu[:, 0, :2]).T)[finite]
-        stats = {"median": float(np.median(d)), "p90": float(np.quantile(d, 0.9))} if len(d) else None
-        return {
-            "non_finite": int((~finite).sum()),
-            "target_end_diff_m": stats,
-            "same_choice": bool(np.argmin(s_cpu) == np.argmin(s)),
-            # how much worse (by the whole-scene simulation) the action it picks is than the best
-            "choice_gap_m": float(s_cpu[np.argmin(s)] - s_cpu.min()),
-        }
-
+    cpu.simulate(q0, objects, acts[:1])  # data buffers made
+    reference = {}
+    for n in counts:
+        reps = repeats if n <= LONG_REFERENCE else 1
+        t, reference[n], steps = timed(cpu, n, reps)
+        row = {"simulator": "cpu", "what": f"{cpu.description} ({os.cpu_count()} cores)", "candidates": n}
+        out["rows"].append({**row, "seconds": t, "repeats": reps, "steps": steps, "steps_per_s": steps / t})
     near = CpuSimulator(scene, k_objects=4, robot=robot)
-    t, final_near, steps = timed(near)
-    out["cpu_near"] = {
-        "what": f"C MuJoCo mujoco.rollout, {near.threads} threads, the target and its 3 nearest objects",
-        "seconds": t,
-        "steps": steps,
-        "steps_per_s": steps / t,
-        **agreement(final_near),
-    }
-    if use_mjx:
-        from .simulate_mjx import MjxSimulator
-
-        mjx_sim = MjxSimulator(robot, sc, batch=candidates)
-        t0 = time.perf_counter()
-        mjx_sim.simulate(q0, objects, acts)  # compiles
-        first = time.perf_counter() - t0
-        t, final_mjx, steps = timed(mjx_sim)
-        out["mjx"] = {
-            "what": f"MuJoCo MJX, batch {mjx_sim.batch}, the target and its {mjx_sim.k - 1} nearest objects, "
-            "plane table",
-            "first_call_s": first,
-            "seconds": t,
-            "steps": steps,
-            "steps_per_s": steps / t,
-            **agreement(final_mjx),
-        }
-        out["speedup_mjx_vs_cpu"] = out["cpu"]["seconds"] / t
-    fastest = min((k for k in ("cpu", "cpu_near", "mjx") if k in out), key=lambda k: out[k]["seconds"])
-    out["fastest"] = {"simulator": fastest, "seconds": out[fastest]["seconds"]}
-    # one whole Greedy decision on this host's CPU, the planner's defaults (32 candidates)
-    cfg = PlannerConfig(asm="greedy")
-    planner = Planner(robot, mf.failure, mf.reach, mf.edges, sc, CpuSimulator(scene), cfg)
-    from .executor import Observation
-
+    n = counts[0]
+    near.simulate(q0, objects, acts[:1])
+    t, final, steps = timed(near, n, repeats)
+    row = {"simulator": "cpu-near", "what": near.description, "candidates": n, "seconds": t, "repeats": repeats}
+    out["rows"].append({**row, "steps": steps, "steps_per_s": steps / t, **agreement(sc, robot, final, reference[n])})
+    if sim_name == "gpu":
+        gpu = make_simulator(robot, scenario_number, "gpu")
+        for n in counts:
+            capture = gpu.prepare(n, max(len(a.q) for a in acts[:n]))
+            t0 = time.perf_counter()
+            gpu.simulate(q0, objects, acts[:n])  # loads the captured graphs onto the device
+            first = time.perf_counter() - t0
+            t, final, steps = timed(gpu, n, repeats)
+            row = {"simulator": "gpu", "what": gpu.description, "candidates": n, "seconds": t, "repeats": repeats}
+            row |= {"capture_s": capture, "first_call_s": first, "steps": steps, "steps_per_s": steps / t}
+            row["speedup_vs_cpu"] = _row(out, "cpu", n)["seconds"] / t
+            out["rows"].append({**row, **agreement(sc, robot, final, reference[n])})
+        out["gpu_model_s"] = gpu.capture_seconds - sum(r.get("capture_s", 0) for r in out["rows"])
+        decision_sim = gpu
+    else:
+        decision_sim = cpu
+    # one whole Greedy decision with the simulator's default candidate count
+    cfg = PlannerConfig(asm="greedy", greedy_candidates=DEFAULT_CANDIDATES[decision_sim.name])
+    planner = Planner(robot, mf.failure, mf.reach, mf.edges, sc, decision_sim, cfg)
     obs = Observation(q0, objects, 0.0)
+    planner.choose(obs, np.random.default_rng(seed))  # transit kernel compiled, graphs loaded
+    simulate = decision_sim.simulate
+    sim_seconds: list[float] = []
+
+    def timed_simulate(*args):
+        t0 = time.perf_counter()
+        result = simulate(*args)
+        sim_seconds.append(time.perf_counter() - t0)
+        return result
+
+    decision_sim.simulate = timed_simulate  # type: ignore[method-assign]
     times = []
     for r in range(repeats):
-        t0 = time.perf_counter()
-        planner.choose(obs, np.random.default_rng(seed + r))
-        times.append(time.perf_counter() - t0)
-    out["cpu_greedy_action"] = {"candidates": cfg.greedy_candidates, "seconds": statistics.median(times)}
+        _, rec = planner.choose(obs, np.random.default_rng(seed + 1 + r))
+        times.append(rec.planning_s)
+    decision_sim.simulate = simulate  # type: ignore[method-assign]
+    out["decision"] = {
+        "simulator": decision_sim.name,
+        "candidates": cfg.greedy_candidates,
+        "simulated": rec.simulated,
+        "seconds": statistics.median(times),
+        "simulation_seconds": statistics.median(sim_seconds),
+    }
     return out
+
+
+def _row(report: dict, simulator: str, n: int) -> dict:
+    return next(r for r in report["rows"] if r["simulator"] == simulator and r["candidates"] == n)

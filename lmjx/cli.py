@@ -60,16 +60,22 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     """The planner's options, shared by plan and evaluate."""
     p.add_argument("--max-actions", type=_positive_int, default=30, help="action budget per task (default 30)")
     p.add_argument(
-        "--candidates", type=_positive_int, help="greedy: actions simulated per step (default 32 CPU, 256 GPU)"
+        "--candidates",
+        type=_positive_int,
+        help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
     )
+    _add_sim(p)
+
+
+def _add_sim(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--sim",
-        choices=("cpu", "cpu-near"),
-        default="cpu",
-        help="the planner's simulator, C MuJoCo on all host cores: cpu (the whole scene; default) or cpu-near (only "
-        "the target and its 3 nearest objects; 2.5x faster).  MuJoCo MJX is measured in lmjx bench but not offered: "
-        "at the planner's batch sizes it was slower than C MuJoCo on the host cores and lost accuracy "
-        "(benchmarks/RESULTS.md)",
+        choices=("auto", "cpu", "cpu-near", "gpu"),
+        default="auto",
+        help="the planner's simulator: gpu (MuJoCo Warp on a CUDA GPU, the whole scene), cpu (C MuJoCo on all "
+        "host cores, the whole scene), cpu-near (C MuJoCo, only the target and its 3 nearest objects) or auto "
+        "(default: gpu where a CUDA GPU and warp-lang are present, else cpu); the choice is printed on stderr "
+        "and given in --json",
     )
 
 
@@ -98,6 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Reach maps, kinodynamic edge bundles and planning for a Franka Panda with locked joints "
         "(after Briscoe-Martinez et al., 'Exploring How Non-Prehensile Manipulation Expands Capability in "
         "Robots Experiencing Multi-Joint Failure').",
+    )
+    parser.add_argument(
+        "--cache-dir",
+        help="where compiled kernels are kept between runs (JAX's compilation cache and Warp's kernel cache); "
+        "default $LMJX_CACHE_DIR, else $XDG_CACHE_HOME/lmjx or ~/.cache/lmjx; 'off' to compile every run",
     )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
 
@@ -252,13 +263,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--sections",
         default="ik,maps,rollouts,planner",
         help="what to time, comma separated: ik (lmjx vs pytorch_kinematics vs PyBullet), maps (whole "
-        "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (Greedy scoring, MJX vs C "
-        "MuJoCo on all cores; needs a map with edges) (default: all)",
+        "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (Greedy scoring, the GPU "
+        "simulator vs C MuJoCo on all cores; needs a map with edges), agreement (the simulator's choices "
+        "against C MuJoCo's over some 200 Greedy decisions; needs --maps with case1.h5 and case2.h5) "
+        "(default: ik,maps,rollouts,planner)",
+    )
+    p.add_argument("--maps", default="maps", help="agreement: folder of case1.h5 and case2.h5 (default maps)")
+    p.add_argument(
+        "--agreement-seeds", type=_positive_int, default=12, help="agreement: trials per failure and scenario (12)"
     )
     p.add_argument("--planner-map", default="maps/case2.h5", help="map for the planner section (default maps/case2.h5)")
     p.add_argument(
-        "--candidates", type=_positive_int, help="candidate actions scored at once (default 256; 8 with --quick)"
+        "--candidates",
+        help="planner section: candidate counts to score, comma separated (default 256,1024,4096 with a GPU "
+        "simulator, 256 without; 8 with --quick)",
     )
+    _add_sim(p)
     p.add_argument("--out", help="write the results as JSON to this file")
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     _add_device(p)
@@ -525,13 +545,21 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _planner_config(args: argparse.Namespace, asm: str):
-    from .batching import backend
-    from .planner import PlannerConfig
+def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
+    """The planner's simulator for --sim, announced on stderr."""
+    from .trial import resolve_simulator
 
-    on_gpu = backend() != "cpu"
+    name, why = resolve_simulator(args.sim)
+    print(f"lmjx {args.command}: simulator {name} ({why})", file=sys.stderr)
+    return name, why
+
+
+def _planner_config(args: argparse.Namespace, asm: str, sim: str):
+    from .planner import PlannerConfig
+    from .trial import DEFAULT_CANDIDATES
+
     return PlannerConfig(
-        asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or (256 if on_gpu else 32)
+        asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or DEFAULT_CANDIDATES[sim]
     )
 
 
@@ -541,7 +569,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from .fileio import check_writable
     from .mapfile import load_map
     from .robot import load_robot
-    from .trial import run_trial, setup_trial
+    from .trial import make_simulator, run_trial, setup_trial
 
     robot = load_robot()
     m = load_map(args.map, robot)
@@ -554,10 +582,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
         check_render_path(args.render)
         check_writable(args.render, "rendering")
-    config = _planner_config(args, args.asm)
-    from .trial import make_simulator
-
-    sim = make_simulator(robot, args.scenario, args.sim) if config.asm != "random" else None
+    sim_name, why = _resolve_sim(args) if args.asm != "random" else ("none", "random does not simulate")
+    config = _planner_config(args, args.asm, sim_name if sim_name != "none" else "cpu")
+    sim = make_simulator(robot, args.scenario, sim_name) if sim_name != "none" else None
     setup = setup_trial(robot, m, args.scenario, config, args.seed, simulator=sim)
     recorder = None
     if args.render:
@@ -572,6 +599,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         "scenario": args.scenario,
         "asm": args.asm,
         "seed": args.seed,
+        "simulator": sim_name,
+        "simulator_reason": why,
+        "simulator_description": sim.description if sim is not None else None,
+        "candidates": config.greedy_candidates if args.asm == "greedy" else None,
         **res.summary(),
         "steps": [
             {
@@ -590,6 +621,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         f"  planning {res.planning_s:.1f} s, execution {res.execution_s:.1f} s, "
         f"target {res.final_distance * 100:.1f} cm from the goal's centre",
     ]
+    if sim is not None:
+        lines.append(f"  simulator: {sim.description}")
     if args.render:
         lines.append(f"  rendering written to {args.render}")
     _emit(args, summary, lines)
@@ -599,9 +632,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .batching import device_description
     from .errors import ConfigError
-    from .evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, summarize
+    from .evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, simulator_description, summarize
     from .fileio import check_writable, write_text_atomic
     from .robot import load_robot
 
@@ -611,6 +643,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"cannot read the list '{text}'") from None
 
+    from dataclasses import replace
+
     robot = load_robot()
     config = EvalConfig(
         failures=split(args.failures),
@@ -618,24 +652,38 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         asms=split(args.asms),
         trials=args.trials,
         seed=args.seed,
-        planner=_planner_config(args, "greedy"),
-        backend=args.sim,
     )
     config.validate()
     out = Path(args.out)
     check_writable(out / "results.json", "results")
     maps = load_maps(robot, config.failures, Path(args.maps))
+    simulates = bool(set(config.asms) - {"random"})
+    sim_name, why = _resolve_sim(args) if simulates else ("cpu", "random does not simulate")
+    config = replace(config, planner=_planner_config(args, "greedy", sim_name), backend=sim_name)
     records = evaluate(robot, maps, config, out)
-    write_text_atomic(out / "report.md", report_markdown(records, config, device_description()))
+    write_text_atomic(out / "report.md", report_markdown(records, config, simulator_description(sim_name)))
     plots(records, out)
     rows = summarize(records)
-    lines = [f"{len(records)} trials; results in {out}/results.json, report in {out}/report.md"]
+    lines = [
+        f"{len(records)} trials; results in {out}/results.json, report in {out}/report.md",
+        f"  simulator {sim_name} ({why}), greedy {config.planner.greedy_candidates} candidates",
+    ]
     lines += [
         f"  {r['failure']} scenario {r['scenario']} {r['asm']:>6}: {r['success_rate'] * 100:5.1f} % of {r['trials']}, "
         f"task {r['task_s_mean']:.1f} s"
         for r in rows
     ]
-    _emit(args, {"cells": rows, "out": str(out)}, lines)
+    _emit(
+        args,
+        {
+            "cells": rows,
+            "out": str(out),
+            "simulator": sim_name,
+            "simulator_reason": why,
+            "candidates": config.planner.greedy_candidates,
+        },
+        lines,
+    )
     return 0
 
 
@@ -793,6 +841,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if threading_main():
         signal.signal(signal.SIGINT, _on_sigint)
+    from .cache import configure
+
+    configure(args.cache_dir)
+    if args.command in ("plan", "evaluate", "bench"):
+        # JAX and MuJoCo Warp share the GPU there: JAX must not take most of its memory up front
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
     try:
         if getattr(args, "device", "auto") != "auto":

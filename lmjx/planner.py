@@ -23,7 +23,9 @@ the arm itself are skipped.  Everything random comes from the trial's seed.
 from __future__ import annotations
 
 import time
+from collections.abc import Generator
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -38,6 +40,7 @@ from .robot import Robot
 from .scenarios import Layout, Scenario, in_goal
 from .simulate import Simulator
 
+T = TypeVar("T")
 ASMS = ("random", "lazy", "greedy")
 OFF_TABLE_PENALTY = 1.0  # [m] per object that leaves the table
 TARGET_LOST = 10.0  # [m] when the target leaves the table
@@ -131,8 +134,66 @@ def edges_over_target(
     return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int32)
 
 
+@dataclass
+class Simulate:
+    """A planner's request: roll these actions out from this observed state."""
+
+    robot_q: np.ndarray  # (nj,)
+    objects: np.ndarray  # (n, 7)
+    actions: list[Action]
+
+
+@dataclass
+class Simulated:
+    """The answer: final object poses (len(actions), n, 7) and the seconds charged for them."""
+
+    objects: np.ndarray
+    seconds: float
+
+
+@dataclass
+class Execute:
+    """A planner's request: execute this action in the world and observe."""
+
+    action: Action
+
+
+Request = Simulate | Execute
+
+
+def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
+    t0 = time.perf_counter()
+    final = sim.simulate(req.robot_q, req.objects, req.actions)
+    return Simulated(final, time.perf_counter() - t0)
+
+
+def drive(steps: Generator[Request, Any, T], sim: Simulator | None, executor: Executor | None = None) -> T:
+    """Run a planner's generator to its end, answering each request at once."""
+    answer: Any = None
+    while True:
+        try:
+            req = steps.send(answer)
+        except StopIteration as done:
+            return done.value
+        if isinstance(req, Simulate):
+            assert sim is not None, "this planner simulates: give it a simulator"
+            answer = simulate_request(sim, req)
+        else:
+            assert executor is not None
+            answer = executor.execute(req.action)
+
+
 class Planner:
-    """Algorithm 3 for one failure's map and one scenario."""
+    """Algorithm 3 for one failure's map and one scenario.
+
+    The planner is written as generators that *ask* for simulations and executions
+    (`Simulate`, `Execute`) and are answered by whoever drives them: `run` answers one
+    trial's requests as they come; `lmjx.lockstep` answers many trials' requests together,
+    so that a GPU simulates the candidates of all of them in one batch.  Either way a trial
+    makes the same decisions.  With a simulator that prefers batches (`prefers_batches`),
+    Lazy simulates its tries in one batch and takes the first improvement in their order:
+    the choice the one-by-one search makes, simulated at once.
+    """
 
     def __init__(
         self,
@@ -141,8 +202,9 @@ class Planner:
         reach: ReachResult,
         bundle: Bundle,
         sc: Scenario,
-        simulator: Simulator,
+        simulator: Simulator | None,
         config: PlannerConfig,
+        transits: TransitPlanner | None = None,
     ) -> None:
         config.validate()
         self.robot = robot
@@ -151,24 +213,23 @@ class Planner:
         self.sc = sc
         self.sim = simulator
         self.config = config
-        self.transits = TransitPlanner(robot, failure)
+        batched = bool(getattr(simulator, "prefers_batches", False))
+        self.batched = batched
+        self.transits = transits or TransitPlanner(robot, failure, batched=batched)
         self.field = GoalField(sc, *table_bounds(robot))
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
         self.futile: dict[int, np.ndarray] = {}
 
-    def _actions(self, edges: np.ndarray, q_now: np.ndarray, want: int) -> list[Action]:
-        """Up to `want` feasible actions from `edges`, in the given order."""
-        out = []
-        for e in edges:
-            a = self.transits.action(self.bundle, int(e), q_now)
-            if a is not None:
-                out.append(a)
-                if len(out) == want:
-                    break
-        return out
-
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
+        """One decision, simulating on this planner's simulator."""
+        t0 = time.perf_counter()
+        action, rec = drive(self.decide(obs, rng), self.sim)
+        rec.planning_s = time.perf_counter() - t0
+        return action, rec
+
+    def decide(self, obs: Observation, rng: np.random.Generator) -> Generator[Simulate, Simulated, tuple]:
+        """One decision: yields the simulations it needs; returns (action or None, record)."""
         cfg = self.config
         target = obs.objects[0, :2]
         edges = edges_over_target(self.bundle, self.reach, target, float(self.sc.target.half[0]), cfg.target_margin)
@@ -179,37 +240,47 @@ class Planner:
         now = float(self.field(target))
         rec = StepRecord(-1, len(edges), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
-            acts = self._actions(order, obs.robot_q, 1)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1)
             if acts:
                 rec.edge = acts[0].edge
             return (acts[0] if acts else None), rec
         if cfg.asm == "greedy":
-            acts = self._actions(order, obs.robot_q, cfg.greedy_candidates)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, cfg.greedy_candidates)
             if not acts:
                 return None, rec
-            final = self.sim.simulate(obs.robot_q, obs.objects, acts)
-            s = score(self.sc, self.robot, final, self.field)
+            done = yield Simulate(obs.robot_q, obs.objects, acts)
+            s = score(self.sc, self.robot, done.objects, self.field)
             best = int(np.argmin(s))
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
             rec.edge = acts[best].edge
             return acts[best], rec
-        # lazy: one by one, first improvement wins
+        # lazy: in random order, the first that brings the target closer wins
         best_a, best_s = None, np.inf
-        tried = 0
-        for e in order:
-            if tried == cfg.lazy_tries:
-                break
-            acts = self._actions([e], obs.robot_q, 1)
-            if not acts:
-                continue
-            tried += 1
-            s = float(score(self.sc, self.robot, self.sim.simulate(obs.robot_q, obs.objects, acts), self.field)[0])
-            if s < best_s:
-                best_a, best_s = acts[0], s
-            if s <= now - cfg.min_progress:
-                break
-        rec.simulated = tried
+        if self.batched:  # its tries at once, then the first improvement in their order
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, cfg.lazy_tries)
+            rec.simulated = len(acts)
+            if acts:
+                done = yield Simulate(obs.robot_q, obs.objects, acts)
+                for a, sc in zip(acts, score(self.sc, self.robot, done.objects, self.field), strict=True):
+                    if float(sc) < best_s:
+                        best_a, best_s = a, float(sc)
+                    if sc <= now - cfg.min_progress:
+                        break
+        else:  # one at a time, stopping at the first improvement
+            for e in order:
+                if rec.simulated == cfg.lazy_tries:
+                    break
+                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1)
+                if not acts:
+                    continue
+                rec.simulated += 1
+                done = yield Simulate(obs.robot_q, obs.objects, acts)
+                sc = float(score(self.sc, self.robot, done.objects, self.field)[0])
+                if sc < best_s:
+                    best_a, best_s = acts[0], sc
+                if sc <= now - cfg.min_progress:
+                    break
         if best_a is not None:
             rec.edge = best_a.edge
             rec.predicted_distance = best_s
@@ -220,7 +291,13 @@ class Planner:
         return at is not None and float(np.hypot(*(target - at))) < self.config.futile_radius
 
     def run(self, executor: Executor, layout: Layout, seed: int) -> TrialResult:
-        """One closed-loop trial."""
+        """One closed-loop trial, simulating and executing each request as it comes."""
+        return drive(self.trial(executor, layout, seed), self.sim, executor)
+
+    def trial(self, executor: Executor, layout: Layout, seed: int) -> Generator[Request, Any, TrialResult]:
+        """One closed-loop trial as a generator of requests (see the class docstring).  A
+        decision's planning time is its own computation plus the simulation seconds its
+        driver charges it."""
         cfg = self.config
         rng = np.random.default_rng(seed)
         self.futile = {}
@@ -235,9 +312,7 @@ class Planner:
             if planning > cfg.max_planning_s:
                 reason = "planning time"
                 break
-            t0 = time.perf_counter()
-            action, rec = self.choose(obs, rng)
-            rec.planning_s = time.perf_counter() - t0
+            action, rec = yield from self._timed_decision(obs, rng)
             planning += rec.planning_s
             if action is None:
                 reason = "no edge" if rec.candidates == 0 else "no feasible transit"
@@ -245,7 +320,7 @@ class Planner:
                 break
             t_before = obs.time
             before = obs.objects[0, :2].copy()
-            obs = executor.execute(action)
+            obs = yield Execute(action)
             if float(self.field(obs.objects[0, :2])) > float(self.field(before)) - cfg.min_progress:
                 self.futile[action.edge] = before
             rec.execution_s = obs.time - t_before
@@ -265,3 +340,21 @@ class Planner:
             steps=steps,
             reason=reason,
         )
+
+    def _timed_decision(self, obs: Observation, rng: np.random.Generator):
+        """`decide`, with its planning time: own computation plus the simulations' charged seconds."""
+        steps = self.decide(obs, rng)
+        own, charged = 0.0, 0.0
+        answer = None
+        while True:
+            t0 = time.perf_counter()
+            try:
+                req = steps.send(answer)
+            except StopIteration as done:
+                own += time.perf_counter() - t0
+                action, rec = done.value
+                rec.planning_s = own + charged
+                return action, rec
+            own += time.perf_counter() - t0
+            answer = yield req
+            charged += answer.seconds

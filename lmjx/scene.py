@@ -47,9 +47,6 @@ class Physics:
     # The planner's arm paths are free of table contact already (edges and transits are
     # checked); the "real" world keeps robot-table contacts.
     robot_table_contacts: bool = False
-    table_as_plane: bool = False  # a plane instead of the table box (cheaper in MJX)
-    solver_iterations: int | None = None  # MuJoCo's constraint solver iterations (None: default)
-    max_contact_points: int | None = None  # MJX: keep the deepest contacts only
 
 
 @dataclass
@@ -81,27 +78,21 @@ def quat_yaw(quat: np.ndarray) -> np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None) -> Scene:
+def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse_static: bool = False) -> Scene:
+    """The robot with a scenario's objects.  `fuse_static` merges bodies without joints into
+    their parents (MuJoCo's `fusestatic`): the same rigid bodies and the same physics in a
+    shallower tree, which MuJoCo Warp walks level by level."""
     physics = physics or Physics()
     spec = mujoco.MjSpec.from_file(str(robot.path))
+    spec.compiler.fusestatic = fuse_static
     robot_bodies = {robot.mj.body(b).name for b in range(1, robot.mj.nbody)}
     spec.option.timestep = physics.timestep
-    if physics.solver_iterations is not None:
-        spec.option.iterations = physics.solver_iterations
-        spec.option.ls_iterations = max(4, physics.solver_iterations)
-    if physics.max_contact_points is not None:
-        spec.add_numeric(name="max_contact_points", data=[physics.max_contact_points])
-        spec.add_numeric(name="max_geom_pairs", data=[physics.max_contact_points])
     # Contact groups: the robot touches the table, the fixed obstacles and the objects, but not
     # itself (its trajectories are already free of self-collision); objects touch everything.
     for g in spec.geoms:
         if g.name == "table":
             g.friction = [physics.table_friction, 0.005, 0.0001]
             g.contype, g.conaffinity = TABLE_BITS[physics.robot_table_contacts]
-            if physics.table_as_plane:
-                g.type = mujoco.mjtGeom.mjGEOM_PLANE
-                g.pos = [g.pos[0], g.pos[1], 0.0]
-                g.size = [g.size[0], g.size[1], 0.05]
         elif g.type == mujoco.mjtGeom.mjGEOM_CAPSULE:
             g.friction = [physics.robot_friction, 0.005, 0.0001]
             g.contype, g.conaffinity = ROBOT_BITS

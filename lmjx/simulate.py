@@ -2,8 +2,9 @@
 batch, returning where every object ends.
 
 `CpuSimulator` uses C MuJoCo's multithreaded `mujoco.rollout` over all host cores (the CPU
-path).  `lmjx.simulate_mjx.MjxSimulator` (the GPU path) implements the same interface with
-MJX.  Both see only the planner's physics (`scene.Physics()` defaults), never the "real"
+path, and the reference every other simulator is tested against).
+`lmjx.simulate_gpu.GpuSimulator` (the GPU path) implements the same interface with MuJoCo
+Warp.  Both see only the planner's physics (`scene.Physics()` defaults), never the "real"
 world's.
 """
 
@@ -34,21 +35,35 @@ def subscenario(sc: Scenario, chosen: list[int]) -> Scenario:
     return replace(sc, target=sc.movable[chosen[0]], obstacles=tuple(sc.movable[i] for i in chosen[1:]))
 
 
-def padded_controls(actions: list[Action], physics_dt: float, settle: float) -> np.ndarray:
+def padded_controls(actions: list[Action], physics_dt: float, settle: float) -> tuple[np.ndarray, np.ndarray]:
     """Servo controls (len(actions), steps, nu) of every action, each held at its last control
-    until the longest one ends."""
+    until the longest one ends, and each action's own number of steps (len(actions),)."""
     ctrl = [controls(a, physics_dt, settle) for a in actions]
-    steps = max(len(c) for c in ctrl)
-    out = np.zeros((len(actions), steps, ctrl[0].shape[1]))
+    ends = np.array([len(c) for c in ctrl])
+    out = np.zeros((len(actions), int(ends.max()), ctrl[0].shape[1]))
     for i, c in enumerate(ctrl):
         out[i, : len(c)] = c
         out[i, len(c) :] = c[-1]
-    return out
+    return out, ends
+
+
+SimRequest = tuple[np.ndarray, np.ndarray, list[Action]]  # robot_q (nj,), objects (n, 7), actions
 
 
 class Simulator(Protocol):
+    name: str  # "cpu", "cpu-near", "gpu"
+    prefers_batches: bool  # True where a batch of many costs about what one candidate does
+    steps_run: int
+
+    @property
+    def description(self) -> str: ...
+
     def simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
         """Final object qpos (len(actions), n_objects, 7) after each action and the settle time."""
+        ...
+
+    def simulate_many(self, requests: list[SimRequest]) -> list[np.ndarray]:
+        """`simulate` for several (robot_q, objects, actions) requests."""
         ...
 
 
@@ -84,6 +99,17 @@ class CpuSimulator:
         self._built: dict[tuple[int, ...] | None, tuple[Scene, list[mujoco.MjData]]] = {}
         self._select(None)
         self.steps_run = 0
+        self.name = "cpu" if self.k is None else "cpu-near"
+
+    prefers_batches = False
+
+    @property
+    def description(self) -> str:
+        what = "whole scene" if self.k is None else f"the target and its {self.k - 1} nearest objects"
+        return f"C MuJoCo mujoco.rollout on {self.threads} threads, {what}"
+
+    def simulate_many(self, requests: list[SimRequest]) -> list[np.ndarray]:
+        return [self.simulate(*r) for r in requests]
 
     def _select(self, chosen: tuple[int, ...] | None) -> None:
         if chosen not in self._built:
@@ -115,16 +141,21 @@ class CpuSimulator:
         return final
 
     def _simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
+        """Each action simulated for exactly its own steps (its state is taken where it ends,
+        whatever else shares the batch)."""
         m = self.scene.model
-        batch = padded_controls(actions, m.opt.timestep, self.settle)
+        batch, ends = padded_controls(actions, m.opt.timestep, self.settle)
         n = batch.shape[1]
         state = np.repeat(self.initial_state(robot_q, obj_qpos)[None], len(actions), axis=0)
+        final = np.empty_like(state)
         for start in range(0, n, self.segment):
             seg = batch[:, start : start + self.segment]
             out, _ = rollout.rollout(m, self.datas, state, seg)
             state = out[:, -1]
+            here = np.nonzero((ends > start) & (ends <= start + seg.shape[1]))[0]
+            final[here] = out[here, ends[here] - start - 1]
             self.steps_run += seg.shape[0] * seg.shape[1]
-        return self._objects(state)
+        return self._objects(final)
 
     def _objects(self, states: np.ndarray) -> np.ndarray:
         # FULLPHYSICS state: time, qpos, qvel, act, ...

@@ -1,4 +1,5 @@
-"""One task trial, wired up: map + scenario + ASM + seed -> planner, simulator, "real" world.
+"""One task trial, wired up: map + scenario + ASM + seed -> planner, simulator, "real" world;
+and the choice of the planner's simulator.
 
 Seeds: a trial's seed fixes the scenario's initial layout and the "real" world's
 perturbations (so every ASM and failure faces the same trials) and, offset by the ASM, the
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .actions import TransitPlanner
 from .errors import ConfigError
 from .executor import SimulatedRealWorld
 from .mapfile import MapFile
@@ -17,6 +19,10 @@ from .robot import Robot
 from .scenarios import Layout, sample_layout, scenario
 from .scene import build_scene
 from .simulate import CpuSimulator, Simulator
+
+SIMULATORS = ("auto", "cpu", "cpu-near", "gpu")
+# Greedy's candidates per decision: what each simulator does well (benchmarks/RESULTS.md)
+DEFAULT_CANDIDATES = {"cpu": 32, "cpu-near": 32, "gpu": 1024}
 
 
 @dataclass
@@ -27,23 +33,36 @@ class TrialSetup:
     planner_seed: int
 
 
-SIMULATORS = ("cpu", "cpu-near", "mjx")
+def resolve_simulator(choice: str) -> tuple[str, str]:
+    """The simulator `choice` ("auto", "cpu", "cpu-near" or "gpu") stands for here, and why.
+    auto: the GPU simulator where a CUDA GPU and MuJoCo Warp are present, else C MuJoCo."""
+    if choice not in SIMULATORS:
+        raise ConfigError(f"unknown simulator '{choice}'; use {', '.join(SIMULATORS)}")
+    if choice in ("auto", "gpu"):
+        from .simulate_gpu import warp_problem
+
+        problem = warp_problem()
+        if problem is None:
+            return "gpu", "a CUDA GPU and MuJoCo Warp are present" if choice == "auto" else "asked for"
+        if choice == "gpu":
+            raise ConfigError(f"--sim gpu: {problem}; use --sim cpu (or auto)")
+        return "cpu", problem
+    return choice, "asked for"
 
 
 def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu") -> Simulator:
-    """The planner's simulator: C MuJoCo on all host cores (the whole scene, or "cpu-near":
-    the target and its 3 nearest objects), or MJX on the accelerator.  Measured in
-    benchmarks/RESULTS.md: C MuJoCo on the host cores is both faster and closer to the
-    whole scene than MJX at the planner's batch sizes, so it is the default everywhere."""
+    """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
+    or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
+    whole scene).  `backend` is resolved already (see `resolve_simulator`)."""
     sc = scenario(scenario_number)
-    if backend not in SIMULATORS:
-        raise ConfigError(f"unknown simulator '{backend}'; use {', '.join(SIMULATORS)}")
+    if backend == "gpu":
+        from .simulate_gpu import GpuSimulator
+
+        return GpuSimulator(build_scene(robot, sc, fuse_static=True))
     if backend == "cpu-near":
         return CpuSimulator(build_scene(robot, sc), k_objects=4, robot=robot)
-    if backend == "mjx":
-        from .simulate_mjx import MjxSimulator
-
-        return MjxSimulator(build_scene(robot, sc))
+    if backend != "cpu":
+        raise ConfigError(f"unknown simulator '{backend}'; use cpu, cpu-near or gpu")
     return CpuSimulator(build_scene(robot, sc))
 
 
@@ -54,11 +73,14 @@ def setup_trial(
     config: PlannerConfig,
     seed: int,
     simulator: Simulator | None = None,
+    transits: TransitPlanner | None = None,
 ) -> TrialSetup:
+    """A trial ready to run.  `transits` may be shared by the trials of one map (it keeps
+    what it learned about transits through the park pose)."""
     sc = scenario(scenario_number)
     assert map_file.reach is not None and map_file.edges is not None
-    sim = simulator or make_simulator(robot, scenario_number)
-    planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config)
+    sim = simulator or (make_simulator(robot, scenario_number) if config.asm != "random" else None)
+    planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config, transits)
     return TrialSetup(
         planner, sample_layout(sc, seed), SimulatedRealWorld(robot, seed), seed * 7 + ASMS.index(config.asm)
     )

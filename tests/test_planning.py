@@ -110,9 +110,8 @@ def test_batched_simulation_equals_one_by_one(robot, small_map):
     objs = object_qpos(s, sample_layout(sc, 2).poses)
     batch = sim.simulate(tp.park, objs, acts)
     single = np.concatenate([sim.simulate(tp.park, objs, [a]) for a in acts])
-    # the batch holds a shorter action's last control until the longest ends: objects at rest
-    # creep by at most ~1e-9 m in those extra steps
-    np.testing.assert_allclose(batch, single, atol=1e-7)
+    # each action's result is taken where it ends, whatever else shares the batch
+    np.testing.assert_array_equal(batch, single)
     assert batch.shape == (len(acts), 4, 7)
     assert np.all(score(sc, robot, batch) < 1.0)  # nobody fell off the table
 
@@ -188,3 +187,101 @@ def test_scenarios_command_draws_without_opengl(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "lmjx.cli", "scenarios", "--out", "/proc/nope"], env=env,
                          capture_output=True, text=True, timeout=300)  # fmt: skip
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+
+
+def test_batched_transits_equal_c_mujoco_transits(robot, small_map):
+    """The clearance kernel's transits (used with a GPU simulator) are C MuJoCo's: the same
+    feasible edges, the same joint targets, from the park pose and from where edges end."""
+    m = load_map(small_map)
+    one = TransitPlanner(robot, m.failure)
+    batch = TransitPlanner(robot, m.failure, batched=True)
+    rng = np.random.default_rng(4)
+    edges = rng.permutation(m.edges.n_edges)[:120]
+    ends = rng.permutation(m.edges.n_edges)[:2]
+    starts = [one.park] + [m.edges.edge(int(e))["q"][-1].astype(np.float64) for e in ends]
+    feasible = 0
+    for q in starts:
+        a = one.actions(m.edges, edges, q, len(edges))
+        b = batch.actions(m.edges, edges, q, len(edges))
+        assert [x.edge for x in a] == [x.edge for x in b]
+        for x, y in zip(a, b, strict=True):
+            assert np.array_equal(x.q, y.q) and np.array_equal(x.qd, y.qd) and x.via_park == y.via_park
+        feasible += len(a)
+    assert 0 < feasible < 3 * len(edges)  # some transits collide, most do not
+    # asking for fewer gives the first ones, in order
+    first = one.actions(m.edges, edges, one.park, 5)
+    assert [x.edge for x in batch.actions(m.edges, edges, one.park, 5)] == [x.edge for x in first]
+
+
+def test_lockstep_trials_equal_trials_run_alone(robot, small_map):
+    """Trials run together (lmjx.lockstep, as lmjx evaluate runs them) decide as they do alone."""
+    from lmjx.lockstep import run_lockstep
+    from lmjx.trial import make_simulator
+
+    m = load_map(small_map)
+    sim = make_simulator(robot, 1, "cpu")
+    cfgs = [PlannerConfig(asm=a, max_actions=3, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
+                                                                                               "greedy")]  # fmt: skip
+    alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim)).summary() for c in cfgs]
+    setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim) for c in cfgs]
+    together: dict[int, dict] = {}
+    run_lockstep(
+        [(s.planner.trial(s.world, s.layout, s.planner_seed), s.world) for s in setups],
+        sim,
+        lambda i, res: together.__setitem__(i, res.summary()),
+        threads=2,
+    )
+    for i, res in enumerate(alone):
+        assert together[i] | {"planning_s": 0} == res | {"planning_s": 0}
+
+
+class _BatchPreferringCpu(CpuSimulator):
+    prefers_batches = True
+
+
+def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, small_map):
+    """With a simulator that prefers batches, Lazy simulates its tries at once and takes the
+    first improvement in their order: the same choice as trying them one at a time."""
+    from lmjx.executor import Observation
+    from lmjx.planner import Planner
+
+    m = load_map(small_map)
+    sc = scenario(1)
+    scene = build_scene(robot, sc)
+    cfg = PlannerConfig(asm="lazy", lazy_tries=6)
+    one = Planner(robot, m.failure, m.reach, m.edges, sc, CpuSimulator(scene), cfg)
+    batch = Planner(robot, m.failure, m.reach, m.edges, sc, _BatchPreferringCpu(scene), cfg,
+                    transits=one.transits)  # fmt: skip
+    chosen = 0
+    for seed in range(6):
+        obs = Observation(one.transits.park, object_qpos(scene, sample_layout(sc, seed).poses), 0.0)
+        a, ra = one.choose(obs, np.random.default_rng(seed))
+        b, rb = batch.choose(obs, np.random.default_rng(seed))
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert a.edge == b.edge and ra.predicted_distance == rb.predicted_distance
+            assert ra.simulated <= rb.simulated
+            chosen += 1
+    assert chosen >= 4
+
+
+def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
+    from lmjx.simulate_gpu import warp_problem
+    from lmjx.trial import resolve_simulator
+
+    if warp_problem() is not None:
+        name, why = resolve_simulator("auto")
+        assert name == "cpu" and why == warp_problem()
+        r = subprocess.run(
+            [sys.executable, "-m", "lmjx.cli", "plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy",
+             "--sim", "gpu"], capture_output=True, text=True, env=ENV, timeout=300,
+        )  # fmt: skip
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--sim gpu" in r.stderr, r.stderr
+    r = subprocess.run(
+        [sys.executable, "-m", "lmjx.cli", "plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy",
+         "--candidates", "4", "--max-actions", "1", "--json"], capture_output=True, text=True, env=ENV, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["simulator"] in ("cpu", "gpu") and out["simulator_reason"] and out["candidates"] == 4
+    assert f"simulator {out['simulator']}" in r.stderr

@@ -1,0 +1,125 @@
+"""Does a simulator make the planner's decisions as C MuJoCo does?  Measured over many Greedy
+decisions, not one.
+
+Decision states: for each failure, scenario and seed, the trial's start (arm parked, objects
+as laid out) and the states after 1 .. `depth - 1` random actions executed in that trial's
+"real" world (objects pushed about, arm elsewhere).  In each state the planner's candidates
+(edges over the target, in the trial's random order, with collision-free transits) are
+simulated by the simulator under test and by C MuJoCo's whole scene (the reference).  Per
+decision: the candidate each picks (lowest score), how much worse by the reference's score
+the tested pick is (the choice gap), and where the target ends in both.  The simulator under
+test sees all decisions of a scenario in one `simulate_many` call.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .actions import TransitPlanner
+from .executor import Observation, SimulatedRealWorld
+from .goalfield import GoalField
+from .mapfile import MapFile
+from .planner import edges_over_target, score, table_bounds
+from .robot import Robot
+from .scenarios import sample_layout, scenario
+from .simulate import Simulator
+
+GAP_OK = 0.01  # [m] a pick this close to the best by the reference's score counts as the same choice
+
+
+@dataclass
+class Decision:
+    failure: str
+    scenario: int
+    seed: int
+    depth: int  # random actions executed before this decision
+    observation: Observation
+    actions: list
+
+
+def decision_states(
+    robot: Robot, maps: dict[str, MapFile], scenarios: tuple[int, ...], seeds: int, depth: int, candidates: int
+) -> list[Decision]:
+    """Decisions with their candidate actions (see the module docstring)."""
+    out = []
+    for f, mf in maps.items():
+        assert mf.edges is not None and mf.reach is not None
+        tp = TransitPlanner(robot, mf.failure, batched=True)
+        for s in scenarios:
+            sc = scenario(s)
+            for seed in range(seeds):
+                rng = np.random.default_rng(seed)
+                world = SimulatedRealWorld(robot, 10_000 + seed)
+                obs = world.reset(sample_layout(sc, 10_000 + seed), tp.park)
+                for k in range(depth):
+                    target = obs.objects[0, :2]
+                    edges = edges_over_target(mf.edges, mf.reach, target, float(sc.target.half[0]), 0.01)
+                    acts = tp.actions(mf.edges, rng.permutation(edges), obs.robot_q, candidates)
+                    if len(acts) < 2:
+                        break
+                    out.append(Decision(f, s, seed, k, obs, acts))
+                    if k + 1 < depth:
+                        obs = world.execute(acts[int(rng.integers(len(acts)))])
+    return out
+
+
+def measure(
+    robot: Robot, decisions: list[Decision], tested: dict[int, Simulator], reference: dict[int, Simulator]
+) -> dict:
+    """Compare the simulators in `tested` with those in `reference` (C MuJoCo's whole scene),
+    per scenario, on every decision."""
+    rows = []
+    seconds = {"tested": 0.0, "reference": 0.0}
+    for s in sorted({d.scenario for d in decisions}):
+        group = [d for d in decisions if d.scenario == s]
+        sim, ref = tested[s], reference[s]
+        sc = scenario(s)
+        field = GoalField(sc, *table_bounds(robot))
+        t0 = time.perf_counter()
+        finals = sim.simulate_many([(d.observation.robot_q, d.observation.objects, d.actions) for d in group])
+        seconds["tested"] += time.perf_counter() - t0
+        for d, final in zip(group, finals, strict=True):
+            t0 = time.perf_counter()
+            expected = ref.simulate(d.observation.robot_q, d.observation.objects, d.actions)
+            seconds["reference"] += time.perf_counter() - t0
+            finite = np.isfinite(final).all(axis=(1, 2))
+            s_ref = score(sc, robot, expected, field)
+            s_new = score(sc, robot, np.where(finite[:, None, None], final, 1e3), field)
+            pick = int(np.argmin(s_new))
+            rows.append(
+                {
+                    "failure": d.failure,
+                    "scenario": s,
+                    "seed": d.seed,
+                    "depth": d.depth,
+                    "candidates": len(d.actions),
+                    "non_finite": int((~finite).sum()),
+                    "same_choice": pick == int(np.argmin(s_ref)),
+                    "choice_gap_m": float(s_ref[pick] - s_ref.min()),
+                    "target_end_diff_m": np.hypot(*(final[:, 0, :2] - expected[:, 0, :2]).T)[finite].tolist(),
+                }
+            )
+    diffs = np.concatenate([r["target_end_diff_m"] for r in rows]) if rows else np.zeros(0)
+    ok = [r["same_choice"] or r["choice_gap_m"] <= GAP_OK for r in rows]
+    return {
+        "decisions": len(rows),
+        "candidates": int(sum(r["candidates"] for r in rows)),
+        "same_choice": float(np.mean([r["same_choice"] for r in rows])) if rows else float("nan"),
+        "same_or_within_1cm": float(np.mean(ok)) if rows else float("nan"),
+        "choice_gap_m": {
+            "median": statistics.median(r["choice_gap_m"] for r in rows) if rows else float("nan"),
+            "max": max((r["choice_gap_m"] for r in rows), default=float("nan")),
+        },
+        "target_end_diff_m": {
+            "median": float(np.median(diffs)) if len(diffs) else float("nan"),
+            "p90": float(np.quantile(diffs, 0.9)) if len(diffs) else float("nan"),
+            "max": float(diffs.max()) if len(diffs) else float("nan"),
+        },
+        "non_finite": int(sum(r["non_finite"] for r in rows)),
+        "seconds": seconds,
+        "per_decision": [{k: v for k, v in r.items() if k != "target_end_diff_m"} for r in rows],
+    }

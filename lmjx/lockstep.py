@@ -1,0 +1,68 @@
+"""Many trials at once: their planners' requests answered together.
+
+Each trial is a planner generator (`Planner.trial`) that yields `Simulate` and `Execute`
+requests.  `run_lockstep` advances every trial of a group to its next request, then answers
+all the simulation requests with one `simulate_many` call (on a GPU: one batch of every
+trial's candidates) and all the executions on a pool of threads (C MuJoCo releases the
+interpreter lock while it steps).  A trial's decisions do not depend on which other trials
+share its batches: this only changes how fast they are made.
+
+Planning time: a batch's seconds are charged to the trials in it in proportion to their
+candidates (a simulator that does not prefer batches is called per request, and each is
+charged its own call).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Generator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+from .executor import Executor
+from .planner import Execute, Simulate, Simulated, TrialResult, simulate_request
+from .simulate import Simulator
+
+
+def run_lockstep(
+    trials: list[tuple[Generator[Any, Any, TrialResult], Executor]],
+    sim: Simulator | None,
+    on_done: Callable[[int, TrialResult], None],
+    threads: int = 1,
+) -> None:
+    """Drive `trials` (generator, executor) to their ends; `on_done(index, result)` is
+    called as each finishes."""
+    answers: dict[int, Any] = {i: None for i in range(len(trials))}
+    with ThreadPoolExecutor(max(1, threads)) as pool:
+        while answers:
+            sims: dict[int, Simulate] = {}
+            execs: dict[int, Execute] = {}
+            for i, answer in answers.items():
+                try:
+                    req = trials[i][0].send(answer)
+                except StopIteration as done:
+                    on_done(i, done.value)
+                    continue
+                if isinstance(req, Simulate):
+                    sims[i] = req
+                else:
+                    execs[i] = req
+            answers = {}
+            futures = {i: pool.submit(trials[i][1].execute, req.action) for i, req in execs.items()}
+            if sims:
+                assert sim is not None, "a trial asked for a simulation but no simulator was given"
+                answers.update(_simulate(sim, sims))
+            answers.update({i: f.result() for i, f in futures.items()})
+
+
+def _simulate(sim: Simulator, sims: dict[int, Simulate]) -> dict[int, Simulated]:
+    if not sim.prefers_batches:
+        return {i: simulate_request(sim, req) for i, req in sims.items()}
+    t0 = time.perf_counter()
+    finals = sim.simulate_many([(r.robot_q, r.objects, r.actions) for r in sims.values()])
+    seconds = time.perf_counter() - t0
+    total = max(1, sum(len(r.actions) for r in sims.values()))
+    return {
+        i: Simulated(final, seconds * len(req.actions) / total)
+        for (i, req), final in zip(sims.items(), finals, strict=True)
+    }
