@@ -2,20 +2,23 @@
 # One device-machine session: install the carried wheels, check the kernels on the GPU
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
-# (no argument: all).  Everything printed also goes to $OUT/session.log; bench.json and the
+# (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu, with warp-lang
+# installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
+# printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
 # from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl); 'maps'
 # compares with CPU maps carried in out/cpu_maps.
 set -uo pipefail
 OUT=${OUT:-$PWD/out/gpu}
 WORK=/tmp/lmjx_gpu
-mkdir -p "$OUT" "$WORK"
+mkdir -p "$OUT" "$WORK/maps"
 exec > >(tee -a "$OUT/session.log") 2>&1
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
   || { echo "wheel install failed"; exit 1; }
 export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
-# Reuse compiled kernels across the processes of one session.
-export JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0
+# Compiled kernels are kept in ~/.cache/lmjx by every lmjx command (lmjx/cache.py); a Warp
+# kernel cache brought along in .wcache/warpcache.tgz spares compiling MuJoCo Warp's kernels.
+mkdir -p ~/.cache/lmjx && { [ -f .wcache/warpcache.tgz ] && tar xzf .wcache/warpcache.tgz -C ~/.cache/lmjx || true; }
 steps=${*:-smoke tests variants bench maps locks}
 date -u
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
@@ -51,12 +54,27 @@ for step in $steps; do
     locks1)
       timeout 300 python3 -m lmjx.cli lock-search --joints J3,J5 --base J7=0.785398 --grid 7 --out "$OUT/lock_j3j5.json" \
         --png "$OUT/lock_j3j5.png" | tail -3 ;;
+    maps100k)
+      # The evaluation's maps (100,000 edges each), built here; case2 twice: the second run finds
+      # every program in the compilation cache (~/.cache/lmjx).
+      rm -rf ~/.cache/lmjx/jax
+      for f in case2 case2 case1; do
+        /usr/bin/time -f "build-map $f: %e s wall" timeout 300 python3 -m lmjx.cli build-map --failure $f \
+          --out "$WORK/maps/$f.h5" --json > "$OUT/build_$f.json" 2> "$WORK/build.err"; tail -1 "$WORK/build.err"
+      done ;;
     planner)
-      # Greedy scoring on the GPU (MJX) against C MuJoCo on all host cores; a case-2 map built here.
-      timeout 200 python3 -m lmjx.cli build-map --failure case2 --out "$WORK/case2.h5" --json 2> "$WORK/build.err" \
-        | tail -3
-      timeout 400 python3 -m lmjx.cli bench --sections planner --planner-map "$WORK/case2.h5" \
+      # Greedy scoring: MuJoCo Warp against C MuJoCo on all host cores, 256/1024/4096 candidates.
+      timeout 500 python3 -m lmjx.cli bench --sections planner --planner-map "$WORK/maps/case2.h5" \
         --out "$OUT/bench_planner.json" ;;
+    gputests)
+      # The GPU simulator's tests on the GPU, the 200-decision agreement among them.
+      LMJX_TEST_MAPS="$WORK/maps" LMJX_TEST_REPORT="$OUT/agreement.json" timeout 580 python3 -m pytest -q -x \
+        -p no:cacheprovider tests/test_simulate_gpu.py 2>&1 | tail -5 ;;
+    evalgpu)
+      # The paper's evaluation with the GPU simulator (resumable: run again to continue).
+      timeout 580 python3 -m lmjx.cli evaluate --maps "$WORK/maps" --out "$WORK/eval_gpu" --json \
+        > "$OUT/eval_gpu.json" 2> "$WORK/eval.err"; tail -3 "$WORK/eval.err"
+      cp "$WORK/eval_gpu/results.json" "$OUT/results_gpu.json" ;;
     atlas1)
       # The whole atlas (K = 3, 1,134 maps) on one GPU, compilation included (cold cache).
       JAX_COMPILATION_CACHE_DIR= /usr/bin/time -f "atlas1 wall %e s" timeout 590 python3 -m lmjx.cli atlas --no-shard \

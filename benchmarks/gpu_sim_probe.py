@@ -50,7 +50,7 @@ def main() -> None:
     sizes = [int(s) for s in args.sizes.split(",")]
     robot = load_robot()
     t0 = time.perf_counter()
-    mf, sc, scene, objects, tp, acts = candidate_actions(robot, args.map, 3, max(sizes), 0)
+    _mf, sc, scene, objects, tp, acts = candidate_actions(robot, args.map, 3, max(sizes), 0)
     if args.truncate:
         acts = [replace(a, q=a.q[-args.truncate :], qd=a.qd[-args.truncate :]) for a in acts]
     report: dict = {

@@ -124,8 +124,7 @@ class _Batch:
         self.points = points
         dev = sim.device
         nj = sim.nj
-        host = mujoco.MjData(sim.mjm)
-        mujoco.mj_forward(sim.mjm, host)
+        host = mujoco.MjData(sim.mjm)  # no contacts yet: every state is set on the device later
         # the device model's own MjModel: its options decide which buffers Data needs
         self.d = mjw.put_data(
             sim.mjm,
@@ -319,6 +318,8 @@ class GpuSimulator:
                 b.run(steps, self.config.segment)
                 qpos = b.final.numpy()[:k].astype(np.float64)
                 overflow = int(np.bitwise_or.reduce(d.overflow.numpy()))
+                rows_seen = int(d.nefc.numpy().max())  # at the last step: a floor for what is needed
+                contacts_seen = int(d.nacon.numpy()[0]) // size
             self.steps_run += k * steps
             grow_rows = bool(overflow & ROWS_OVERFLOW)
             grow_contacts = bool(overflow & CONTACTS_OVERFLOW)
@@ -326,10 +327,13 @@ class GpuSimulator:
                 return qpos
             # a buffer was too small for some world: grow it and roll the batch out again
             self.reruns += 1
+            cfg = self.config
             self.config = replace(
-                self.config,
-                rows_per_world=self.config.rows_per_world * (2 if grow_rows else 1),
-                contacts_per_world=self.config.contacts_per_world * (2 if grow_contacts else 1),
+                cfg,
+                rows_per_world=max(2 * cfg.rows_per_world, rows_seen * 5 // 4) if grow_rows else cfg.rows_per_world,
+                contacts_per_world=max(2 * cfg.contacts_per_world, contacts_seen * 5 // 4)
+                if grow_contacts
+                else cfg.contacts_per_world,
             )
             self._batches.clear()
         raise RuntimeError(f"MuJoCo Warp overflowed its buffers after growing them {MAX_REGROWTH} times")

@@ -1,0 +1,192 @@
+"""The GPU simulator (MuJoCo Warp) against C MuJoCo, and the two model facts it relies on.
+
+The model facts need only C MuJoCo.  The simulator tests need warp-lang: without it they
+are skipped (CI installs no GPU package); with it and no CUDA GPU they run on Warp's CPU
+device on short actions; with a CUDA GPU they run there on whole actions, and the
+agreement over 200 Greedy decisions (the acceptance test of the GPU simulator) runs too.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from lmjx.actions import park_pose
+from lmjx.failure import parse_failure
+from lmjx.scenarios import sample_layout, scenario
+from lmjx.scene import build_scene, object_qpos, set_state
+from lmjx.simulate import CpuSimulator
+
+
+def _contacts(m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
+    mujoco.mj_forward(m, d)
+    c = d.contact[: d.ncon]
+    return np.concatenate([c.geom, c.pos, c.frame, c.dist[:, None]], axis=1) if d.ncon else np.zeros((0, 15))
+
+
+def test_c_mujoco_collides_box_pairs_the_same_with_or_without_native_ccd(robot):
+    """The GPU simulator sets mjDSBL_NATIVECCD so that MuJoCo Warp collides boxes with the
+    primitive box-box routine; C MuJoCo uses that routine either way (so the flag changes
+    nothing in the reference): the same contacts, in states where boxes touch each other,
+    the table and the arm."""
+    sc = scenario(3)
+    scene = build_scene(robot, sc)
+    m = scene.model
+    d = mujoco.MjData(m)
+    q = park_pose(robot, parse_failure("case2", robot))
+    touching = 0
+    for seed in range(4):
+        objects = object_qpos(scene, sample_layout(sc, seed).poses)
+        objects[1, :2] = objects[0, :2] + [0.049, 0.01]  # a box against the target
+        objects[2, :3] = objects[0, :3] + [0.0, 0.0, 0.055]  # a box on the target
+        set_state(scene, d, q, objects)
+        for _ in range(20):
+            mujoco.mj_step(scene.model, d)
+        with_ccd = _contacts(m, d)
+        m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_NATIVECCD
+        without = _contacts(m, d)
+        m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+        np.testing.assert_array_equal(with_ccd, without)
+        boxes = set(m.geom_bodyid[with_ccd[:, :2].astype(int)].ravel()) & set(scene.obj_body)
+        touching += len(boxes)
+    assert touching > 8
+
+
+def test_fused_scene_has_the_same_dynamics(robot):
+    """`fuse_static` (the GPU simulator's scene) merges jointless bodies into their parents:
+    a shallower tree with the same state layout, mass matrix, bias forces and contacts."""
+    sc = scenario(1)
+    a, b = build_scene(robot, sc), build_scene(robot, sc, fuse_static=True)
+    assert b.model.nbody < a.model.nbody and a.model.nq == b.model.nq
+    assert np.array_equal(a.robot_qpos, b.robot_qpos) and np.array_equal(a.obj_qpos, b.obj_qpos)
+    da, db = mujoco.MjData(a.model), mujoco.MjData(b.model)
+    rng = np.random.default_rng(0)
+    for seed in range(5):
+        q = robot.lower + rng.random(robot.nq) * (robot.upper - robot.lower)
+        objects = object_qpos(a, sample_layout(sc, seed).poses)
+        for s, d in ((a, da), (b, db)):
+            set_state(s, d, q, objects)
+            d.qvel[:] = np.random.default_rng(seed).normal(0, 0.5, s.model.nv)
+            mujoco.mj_forward(s.model, d)
+        ma, mb = np.zeros((a.model.nv,) * 2), np.zeros((b.model.nv,) * 2)
+        mujoco.mj_fullM(a.model, da, ma)
+        mujoco.mj_fullM(b.model, db, mb)
+        np.testing.assert_allclose(mb, ma, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(db.qfrc_bias, da.qfrc_bias, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(db.qacc, da.qacc, rtol=1e-6, atol=1e-6)
+        assert da.ncon == db.ncon
+
+
+# ---------------------------------------------------------------- the simulator itself
+
+wp = pytest.importorskip("warp", reason="warp-lang is not installed (the GPU extra: pip install -e '.[gpu]')")
+from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator, warp_problem  # noqa: E402
+
+CUDA = warp_problem() is None
+
+
+def _sim_config(**kw) -> GpuSimConfig:
+    """On a CUDA GPU the defaults; else Warp's CPU device with small batches."""
+    return GpuSimConfig(**kw) if CUDA else GpuSimConfig(device="cpu", buckets=(2, 4), segment=4, **kw)
+
+
+@pytest.fixture(scope="module")
+def candidates(robot, tmp_path_factory):
+    """A case-2 map's candidates for Scenario 3 (whole actions on a GPU, their last 0.2 s on
+    Warp's CPU device, which is far slower)."""
+    import subprocess
+    import sys
+
+    from lmjx.bench_planner import candidate_actions
+
+    path = tmp_path_factory.mktemp("gpu") / "case2.h5"
+    env = {**os.environ, "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
+    r = subprocess.run(
+        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "3000", "--cell", "0.05",
+         "--seed", "1", "--out", str(path)], capture_output=True, text=True, timeout=900, env=env,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    n = 64 if CUDA else 4
+    _mf, sc, scene, objects, tp, acts = candidate_actions(robot, str(path), 3, n, 0)
+    if not CUDA:
+        acts = [replace(a, q=a.q[-(6 + 2 * i) :], qd=a.qd[-(6 + 2 * i) :]) for i, a in enumerate(acts)]
+    return sc, scene, objects, tp.park, acts
+
+
+def test_gpu_simulator_matches_c_mujoco(robot, candidates):
+    sc, scene, objects, q0, acts = candidates
+    ref = CpuSimulator(scene).simulate(q0, objects, acts)
+    sim = GpuSimulator(build_scene(robot, sc, fuse_static=True), config=_sim_config())
+    out = sim.simulate(q0, objects, acts)
+    assert out.shape == ref.shape and np.isfinite(out).all()
+    d = np.hypot(*(out[:, :, :2] - ref[:, :, :2]).reshape(-1, 2).T)
+    assert np.median(d) < 1e-4, np.median(d)  # float32 on the device, float64 in C MuJoCo
+    target = np.hypot(*(out[:, 0, :2] - ref[:, 0, :2]).T)
+    assert np.quantile(target, 0.9) < 2e-3, target  # contact chains amplify rounding in a few
+    assert sim.capture_seconds > 0 and sim.steps_run > 0 and sim.reruns == 0
+
+
+def test_results_do_not_depend_on_the_batch(robot, candidates):
+    """A candidate's result is where its own action ends: the same alone, padded into a
+    larger batch, or next to other decisions' candidates from other start states."""
+    sc, _scene, objects, q0, acts = candidates
+    sim = GpuSimulator(build_scene(robot, sc, fuse_static=True), config=_sim_config())
+    short = min(acts[:3], key=lambda a: len(a.q))
+    alone = sim.simulate(q0, objects, [short])
+    moved = objects.copy()
+    moved[1:, 0] += 0.01
+    both = sim.simulate_many([(q0, moved, acts[:2]), (q0, objects, [short, acts[2]])])
+    np.testing.assert_allclose(both[1][0], alone[0], atol=1e-6)
+    np.testing.assert_allclose(both[0], sim.simulate(q0, moved, acts[:2]), atol=1e-6)
+
+
+def test_overflowing_buffers_are_grown_and_the_batch_rolled_out_again(robot, candidates):
+    sc, _scene, objects, q0, acts = candidates
+    scene_f = build_scene(robot, sc, fuse_static=True)
+    small = GpuSimulator(scene_f, config=_sim_config(rows_per_world=32, contacts_per_world=8))
+    out = small.simulate(q0, objects, acts[:2])
+    assert small.reruns >= 1 and small.config.rows_per_world > 32 and small.config.contacts_per_world > 8
+    np.testing.assert_allclose(out, GpuSimulator(scene_f, config=_sim_config()).simulate(q0, objects, acts[:2]),
+                               atol=1e-6)  # fmt: skip
+
+
+@pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU (the agreement test of the GPU simulator)")
+def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
+    """The GPU simulator picks C MuJoCo's action, or one within 1 cm of the best by C
+    MuJoCo's score, in at least 95 % of 200+ Greedy decisions across both failures, the three
+    scenarios and 12 trials each; target ends median at most 1 cm apart; nothing
+    non-finite.  Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5) or built here.
+    LMJX_TEST_REPORT: write the figures there (JSON)."""
+    from lmjx.agreement import decision_states, measure
+    from lmjx.evaluate import load_maps
+    from lmjx.trial import make_simulator
+
+    folder = Path(os.environ.get("LMJX_TEST_MAPS", tmp_path))
+    if "LMJX_TEST_MAPS" not in os.environ:
+        from lmjx.bundle import BundleConfig, build_bundle
+        from lmjx.mapfile import write_map
+        from lmjx.reach import ReachConfig, reach_map
+
+        for f in ("case1", "case2"):
+            reach = reach_map(f, ReachConfig(), robot=robot)
+            write_map(folder / f"{f}.h5", reach, build_bundle(reach, BundleConfig(edges=100_000), robot=robot), robot)
+    maps = load_maps(robot, ("case1", "case2"), folder)
+    decisions = decision_states(robot, maps, (1, 2, 3), 12, 3, 64)
+    report = measure(
+        robot,
+        decisions,
+        {s: make_simulator(robot, s, "gpu") for s in (1, 2, 3)},
+        {s: make_simulator(robot, s, "cpu") for s in (1, 2, 3)},
+    )
+    if "LMJX_TEST_REPORT" in os.environ:
+        Path(os.environ["LMJX_TEST_REPORT"]).write_text(json.dumps(report, indent=1))
+    assert report["decisions"] >= 200
+    assert report["same_or_within_1cm"] >= 0.95, report["same_or_within_1cm"]
+    assert report["target_end_diff_m"]["median"] <= 0.01
+    assert report["non_finite"] == 0
