@@ -13,8 +13,8 @@ OUT=${OUT:-$PWD/out/gpu}
 WORK=/tmp/lmjx_gpu
 mkdir -p "$OUT" "$WORK/maps"
 exec > >(tee -a "$OUT/session.log") 2>&1
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-  || { echo "wheel install failed"; exit 1; }
+[ -d /tmp/site/mujoco ] || python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site .whl/*.whl || { echo "wheel install failed"; exit 1; }
 export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
 # Compiled kernels are kept in ~/.cache/lmjx by every lmjx command (lmjx/cache.py); a Warp
 # kernel cache brought along in .wcache/warpcache.tgz spares compiling MuJoCo Warp's kernels.
@@ -66,6 +66,12 @@ for step in $steps; do
       # Greedy scoring: MuJoCo Warp against C MuJoCo on all host cores, 256/1024/4096 candidates.
       timeout 500 python3 -m lmjx.cli bench --sections planner --planner-map "$WORK/maps/case2.h5" \
         --out "$OUT/bench_planner.json" ;;
+    plan)
+      for asm in greedy lazy; do
+        timeout 300 python3 -m lmjx.cli plan --map "$WORK/maps/case2.h5" --scenario 3 --asm $asm --json \
+          > "$OUT/plan_$asm.json" 2> "$WORK/plan.err"; tail -2 "$WORK/plan.err"
+        python3 -c "import json; d = json.load(open('$OUT/plan_$asm.json')); print({k: d[k] for k in ('simulator', 'candidates', 'success', 'actions', 'planning_s')})"
+      done ;;
     gputests)
       # The GPU simulator's tests on the GPU, the 200-decision agreement among them.
       LMJX_TEST_MAPS="$WORK/maps" LMJX_TEST_REPORT="$OUT/agreement.json" timeout 580 python3 -m pytest -q -x \
