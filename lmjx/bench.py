@@ -359,6 +359,13 @@ def _print_agreement(ag: dict) -> None:
         f"{ag['same_or_within_1cm'] * 100:.1f} %; target ends {d['median'] * 100:.2f} / {d['p90'] * 100:.2f} cm "
         f"(median / p90) apart; {ag['non_finite']} non-finite"
     )
+    if "gpu_vs_gpu" in ag:
+        g = ag["gpu_vs_gpu"]
+        print(
+            f"  the same decisions on a second GPU simulator (other batches): same or within 1 cm "
+            f"{g['same_or_within_1cm'] * 100:.1f} %, target ends {g['target_end_diff_m']['median'] * 100:.2f} / "
+            f"{g['target_end_diff_m']['p90'] * 100:.2f} cm apart (median / p90)"
+        )
 
 
 SECTIONS = ("ik", "maps", "rollouts", "planner", "agreement")
@@ -385,6 +392,12 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     reference = {s: make_simulator(robot, s, "cpu") for s in scenarios}
     out = measure(robot, decisions, tested, reference)
     out |= {"simulator": sim_name, "maps": args.maps, "seeds": seeds, "depth": 3}
+    if sim_name == "gpu":
+        # the same decisions on two GPU simulators batching them differently: how far float32
+        # rounding (and the order atomics leave contacts in) carries through the scenes' contacts
+        twin = {s: make_simulator(robot, s, "gpu") for s in scenarios}
+        self_check = measure(robot, decisions, tested, twin)
+        out["gpu_vs_gpu"] = {k: v for k, v in self_check.items() if k != "per_decision"}
     return out
 
 

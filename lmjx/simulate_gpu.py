@@ -1,14 +1,16 @@
 """The planner's simulator on a CUDA GPU: MuJoCo Warp, as shipped inside mujoco-mjx.
 
 `GpuSimulator` implements the `simulate.Simulator` interface on the scene the CPU simulator
-runs (every object, the table as a box, the planner's physics), with two changes that alter
-no physics:
+runs (every object, the table as a box, the planner's physics), with three changes that
+alter no physics:
   * box-box contacts use MuJoCo's primitive box-box collider (`mjDSBL_NATIVECCD` on the
     device model), which is what C MuJoCo uses for box pairs whatever that flag says;
     MuJoCo Warp's default for box pairs is its convex (GJK/EPA) path, measured 0.5 cm
     (median) off C MuJoCo where the primitive path is 1e-6 m off;
   * the caller may fuse the robot's jointless bodies into their parents
-    (`scene.build_scene(fuse_static=True)`): the same rigid bodies in a shallower tree.
+    (`scene.build_scene(fuse_static=True)`): the same rigid bodies in a shallower tree;
+  * objects start 0.1 micrometre lower (`SETTLE_NUDGE`): resting exactly on the table, they
+    would float above it after rounding to float32 and miss their first contacts.
 tests/test_simulate_gpu.py checks both facts and the agreement with C MuJoCo.
 
 How a batch of candidate actions is rolled out:
@@ -48,6 +50,12 @@ from .errors import ConfigError
 from .scene import Scene, set_state
 
 MAX_REGROWTH = 4
+# The planner places what it observes exactly at rest on the table (zero distance: C MuJoCo
+# makes the contacts there).  In float32 such a box's height rounds up to a fraction of a
+# nanometre above the table and MuJoCo Warp finds no contact in the first step: the box
+# drops, and a pushed one ends millimetres from where C MuJoCo's does.  Lowering every
+# object by this much at the start puts both on the same side of the tie.
+SETTLE_NUDGE = 1e-7  # [m]
 # MuJoCo Warp's overflow bits (mujoco_warp.OverflowType) that mean a buffer was too small
 ROWS_OVERFLOW = (1 << 0) | (1 << 1)  # NEFC, NJMAX_NNZ: constraint rows (njmax)
 CONTACTS_OVERFLOW = (1 << 2) | (1 << 3) | (1 << 4)  # BROADPHASE, NARROWPHASE, CCD: contacts (naconmax)
@@ -251,9 +259,12 @@ class GpuSimulator:
         (more than the largest batch size: several, of candidates of similar length, so that
         few worlds idle while the longest action of their batch finishes)."""
         starts, acts = [], []
+        heights = self.scene.obj_qpos + 2
         for robot_q, obj_qpos, actions in requests:
             set_state(self.scene, self._host, robot_q, obj_qpos)
-            starts += [(self._host.qpos.copy(), self._host.ctrl.copy())] * len(actions)
+            qpos = self._host.qpos.copy()
+            qpos[heights] -= SETTLE_NUDGE
+            starts += [(qpos, self._host.ctrl.copy())] * len(actions)
             acts += actions
         n = len(acts)
         out = np.empty((n, self.scene.model.nq))

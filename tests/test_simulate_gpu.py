@@ -91,6 +91,17 @@ from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator, warp_problem  # noqa: 
 CUDA = warp_problem() is None
 
 
+def _same_results(a: np.ndarray, b: np.ndarray) -> None:
+    """Two runs of the same candidates agree: exactly enough on Warp's CPU device; on a GPU
+    up to its run-to-run rounding (contacts are collected with atomics, so their order, and
+    the last bits of a solve, vary between launches; contact chains can amplify that)."""
+    if not CUDA:
+        np.testing.assert_allclose(a, b, atol=1e-6)
+        return
+    d = np.abs(a[..., :3] - b[..., :3])
+    assert np.median(d) < 1e-6 and d.max() < 2e-3, (np.median(d), d.max())
+
+
 def _sim_config(**kw) -> GpuSimConfig:
     """On a CUDA GPU the defaults; else Warp's CPU device with small batches."""
     return GpuSimConfig(**kw) if CUDA else GpuSimConfig(device="cpu", buckets=(2, 4), segment=4, **kw)
@@ -142,8 +153,8 @@ def test_results_do_not_depend_on_the_batch(robot, candidates):
     moved = objects.copy()
     moved[1:, 0] += 0.01
     both = sim.simulate_many([(q0, moved, acts[:2]), (q0, objects, [short, acts[2]])])
-    np.testing.assert_allclose(both[1][0], alone[0], atol=1e-6)
-    np.testing.assert_allclose(both[0], sim.simulate(q0, moved, acts[:2]), atol=1e-6)
+    _same_results(both[1][:1], alone)
+    _same_results(both[0], sim.simulate(q0, moved, acts[:2]))
 
 
 def test_overflowing_buffers_are_grown_and_the_batch_rolled_out_again(robot, candidates):
@@ -152,16 +163,15 @@ def test_overflowing_buffers_are_grown_and_the_batch_rolled_out_again(robot, can
     small = GpuSimulator(scene_f, config=_sim_config(rows_per_world=32, contacts_per_world=8))
     out = small.simulate(q0, objects, acts[:2])
     assert small.reruns >= 1 and small.config.rows_per_world > 32 and small.config.contacts_per_world > 8
-    np.testing.assert_allclose(out, GpuSimulator(scene_f, config=_sim_config()).simulate(q0, objects, acts[:2]),
-                               atol=1e-6)  # fmt: skip
+    _same_results(out, GpuSimulator(scene_f, config=_sim_config()).simulate(q0, objects, acts[:2]))
 
 
 @pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU (the agreement test of the GPU simulator)")
 def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     """The GPU simulator picks C MuJoCo's action, or one within 1 cm of the best by C
-    MuJoCo's score, in at least 95 % of 200+ Greedy decisions across both failures, the three
-    scenarios and 12 trials each; target ends median at most 1 cm apart; nothing
-    non-finite.  Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5) or built here.
+    MuJoCo's score, in at least 95 % of 200+ Greedy decisions (64 candidates each) across
+    both failures, the three scenarios and 12 trials each, from the trials' starts and after
+    one and two random pushes; target ends median at most 1 cm apart; nothing non-finite.  Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5) or built here.
     LMJX_TEST_REPORT: write the figures there (JSON)."""
     from lmjx.agreement import decision_states, measure
     from lmjx.evaluate import load_maps
