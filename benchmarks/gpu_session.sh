@@ -63,9 +63,10 @@ for step in $steps; do
           --out "$WORK/maps/$f.h5" --json > "$OUT/build_$f.json" 2> "$WORK/build.err"; tail -1 "$WORK/build.err"
       done ;;
     planner)
-      # Greedy scoring: MuJoCo Warp against C MuJoCo on all host cores, 256/1024/4096 candidates.
-      timeout 500 python3 -m lmjx.cli bench --sections planner --planner-map "$WORK/maps/case2.h5" \
-        --out "$OUT/bench_planner.json" ;;
+      # Greedy scoring: MuJoCo Warp against C MuJoCo on all host cores, 256/1024/4096 candidates;
+      # then the agreement of their choices over some 200 Greedy decisions.
+      timeout 580 python3 -m lmjx.cli bench --sections planner,agreement --planner-map "$WORK/maps/case2.h5" \
+        --maps "$WORK/maps" --out "$OUT/bench_planner.json" ;;
     plan)
       for asm in greedy lazy; do
         timeout 300 python3 -m lmjx.cli plan --map "$WORK/maps/case2.h5" --scenario 3 --asm $asm --json \
