@@ -7,14 +7,61 @@ The IK batches (`lmjx.ik_batch`) and the edge rollouts (`lmjx.bundle`) both run 
 
 from __future__ import annotations
 
+import hashlib
+import os
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 _COMPILED: dict[tuple, tuple[Callable, dict[str, tuple[tuple[int, ...], np.dtype]]]] = {}
+_SOURCES = ("batching.py", "kernels/__init__.py")  # with every kernels/*.py: what a traced program depends on
+
+
+def _code_version() -> str:
+    """A hash of lmjx's version and the source of everything a kernel's trace depends on."""
+    from . import __version__
+
+    here = Path(__file__).parent
+    h = hashlib.sha256(__version__.encode())
+    for f in sorted({*(here / s for s in _SOURCES), *(here / "kernels").glob("*.py")}):
+        h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()
+
+
+def exported(key: tuple, fn: Callable, args: list, names: list[str]) -> Callable:
+    """`fn` traced once per machine: from a JAX export in the lmjx cache folder when an
+    earlier run saved one for this kernel (its key, lmjx's kernel sources, JAX's version and
+    the platform), else traced now and saved.  Returns a jitted callable; `names` receives
+    the output field names.  Without a cache folder (or on any error) it traces as usual."""
+    from .cache import cache_dir
+
+    folder = cache_dir()
+    if folder is None:
+        return fn
+    dev = jax.devices()[0]
+    ident = repr((key, _code_version(), jax.__version__, dev.platform, getattr(dev, "device_kind", "")))
+    path = folder / "export" / (hashlib.sha256(ident.encode()).hexdigest() + ".jaxexport")
+    try:
+        from jax import export
+
+        if path.exists():
+            blob = path.read_bytes()
+            head = blob.index(b"\n")
+            names[:] = blob[:head].decode().split(",")
+            return jax.jit(export.deserialize(bytearray(blob[head + 1 :])).call)
+        specs = [jax.ShapeDtypeStruct(np.shape(a), a.dtype) for a in args]
+        exp = export.export(fn)(*specs)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_bytes(",".join(names).encode() + b"\n" + exp.serialize())
+        os.replace(tmp, path)
+        return jax.jit(exp.call)
+    except Exception:  # an old or damaged export, no flatbuffers, a read-only folder: trace as usual
+        return fn
 
 
 def backend() -> str:
@@ -82,13 +129,29 @@ class ChunkedKernel:
         # numpy dummies: a jnp.zeros of a new shape would itself compile a small program.
         dummy = [self._put(np.zeros((self.chunk, *s), d)) for d, s in self.inputs]
         axes = (None,) * len(self.shared) + (0,) * len(self.inputs)
-        fn = jax.jit(jax.vmap(self.one, in_axes=axes))
-        compiled = fn.lower(*self.shared, *dummy).compile()
+        vmapped = jax.vmap(self.one, in_axes=axes)
+        names: list[str] = []
+
+        def flat(*args):  # the kernel's NamedTuple as a plain tuple (what an export can hold)
+            res = vmapped(*args)
+            names[:] = res._fields
+            return tuple(res)
+
+        plain = jax.jit(flat)
+        # Tracing these kernels takes seconds; a traced program saved by an earlier run (a JAX
+        # export) is loaded instead, and XLA's persistent cache then spares the compilation.
+        fn = plain if self.sharded else exported(self.key, plain, [*self.shared, *dummy], names)
+        try:
+            compiled = fn.lower(*self.shared, *dummy).compile()
+        except Exception:
+            if fn is plain:
+                raise
+            compiled = plain.lower(*self.shared, *dummy).compile()  # an export this JAX cannot run
         # One warm-up call is counted with the compilation: it loads the program onto the
         # device, so that timed calls measure steady-state work.
         res = jax.block_until_ready(compiled(*self.shared, *dummy))
         self.compile_seconds = time.perf_counter() - t0
-        self._out = {k: (np.shape(v)[1:], np.dtype(v.dtype)) for k, v in res._asdict().items()}
+        self._out = {k: (np.shape(v)[1:], np.dtype(v.dtype)) for k, v in zip(names, res, strict=True)}
         self._fn = compiled
         _COMPILED[self.key] = (compiled, self._out)
 
@@ -119,7 +182,7 @@ class ChunkedKernel:
 
         def collect(p: tuple) -> None:
             res, count = p
-            outs.append({k: self._host(v)[:count] for k, v in res._asdict().items()})
+            outs.append({k: self._host(v)[:count] for k, v in zip(self._out, res, strict=True)})
             if progress is not None:
                 progress(count)
 

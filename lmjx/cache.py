@@ -1,7 +1,9 @@
 """Where lmjx keeps compiled programs between runs, so that each is compiled once per machine.
 
-Two caches live in one per-user folder:
+Three caches live in one per-user folder:
   * `<dir>/jax`: JAX's persistent compilation cache (the IK, rollout and clearance kernels);
+  * `<dir>/export`: those kernels traced (JAX exports; tracing them takes seconds too), keyed
+    by the kernel, lmjx's kernel sources, JAX's version and the platform (`lmjx.batching`);
   * `<dir>/warp`: Warp's kernel cache (MuJoCo Warp's kernels, for the GPU simulator).
 The folder is, in this order: `--cache-dir DIR` on the command line, the environment
 variable `LMJX_CACHE_DIR`, `$XDG_CACHE_HOME/lmjx`, `~/.cache/lmjx`.  `off` turns lmjx's
