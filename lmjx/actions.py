@@ -139,7 +139,7 @@ class TransitPlanner:
         while len(out) < want and i < len(edges):
             part = np.asarray(edges[i : i + block])
             i += len(part)
-            starts = bundle.q[bundle.offset[part]].astype(np.float64)
+            starts = bundle.q_start[part].astype(np.float64)
             direct = self.segments(np.repeat(q_now[None], len(part), axis=0), starts)
             via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
             for j, e in enumerate(part):
@@ -162,7 +162,7 @@ class TransitPlanner:
         key = id(bundle)
         todo = [j for j in idx if (key, int(part[j])) not in self._from_park]
         if todo:
-            starts = bundle.q[bundle.offset[part[todo]]].astype(np.float64)
+            starts = bundle.q_start[part[todo]].astype(np.float64)
             for j, seg in zip(todo, self.segments(np.repeat(self.park[None], len(todo), axis=0), starts), strict=True):
                 self._from_park[(key, int(part[j]))] = seg
         out = {}

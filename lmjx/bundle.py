@@ -7,14 +7,22 @@ a constant twist (direction uniform in [-1, 1]^6, normalized; speed uniform in
 follows the twist with the arm's dynamics, rejecting the edge at the first violated limit
 or collision.  Valid edges are kept with every state (q, qd and the point's position), and a
 spatial index lists, for each cell of the task plane, the edges whose point passes over it
-low enough to touch an object there.  Everything random comes from the seed.
+low enough to touch an object there.
+
+Randomness is counter-based: edge i's draws are row i of a Philox stream keyed by the seed
+(`edge_uniforms`), so an edge is the same whatever range of edges it is computed with.
+Edges are processed in chunks (`EdgeChunk`: the valid edges of sampled edges [start, stop),
+packed, with their spatial-index entries); `build_bundle` packs every chunk in memory,
+`lmjx.edgestream` streams chunks to a map file in bounded memory.  Either way the same seed
+gives the same edges, for any chunk size and any number of devices.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -28,11 +36,13 @@ from .reach import NPM, ReachResult
 from .robot import Robot, load_robot
 
 IK_FAILED = "ik"  # an edge whose start could not be solved
+MAX_EDGES = 50_000_000
 
 
 @dataclass(frozen=True)
 class BundleConfig:
-    """Everything that defines an edge bundle (the reach map's own config is kept with it)."""
+    """Everything that defines an edge bundle (the reach map's own config is kept with it),
+    and how it is computed (`chunk`, `build_chunk`: not part of the result)."""
 
     edges: int | None = None  # sampled edges; default 10,000 on a CPU, 100,000 on a GPU
     dt: float = 0.02  # control period [s]
@@ -47,7 +57,8 @@ class BundleConfig:
     # object of this height there [m]
     index_substeps: int = 4  # points per step segment rasterized into the index
     seed: int = 0
-    chunk: int | None = None  # edges per kernel call; default by platform
+    chunk: int | None = None  # edges per kernel launch (per device); default by platform
+    build_chunk: int | None = None  # edges sampled, rolled out and packed at a time; default by platform
 
     def n_edges(self) -> int:
         return self.edges if self.edges is not None else (100_000 if backend() != "cpu" else 10_000)
@@ -56,9 +67,19 @@ class BundleConfig:
     def steps(self) -> int:
         return round(self.duration_range[1] / self.dt)
 
+    def kernel_chunk(self) -> int:
+        return self.chunk or (1 << 17 if backend() != "cpu" else 512)
+
+    def edges_per_chunk(self, devices: int = 1) -> int:
+        """Edges per streamed chunk: bounded host memory (the rollouts of a chunk come back
+        whole: about 7 kB per edge) and whole launches on every device."""
+        if self.build_chunk:
+            return self.build_chunk
+        return self.kernel_chunk() * devices * (2 if backend() != "cpu" else 32)
+
     def validate(self, robot: Robot) -> None:
-        if self.edges is not None and not 1 <= self.edges <= 50_000_000:
-            raise ConfigError(f"--edges must be between 1 and 50,000,000, got {self.edges}")
+        if self.edges is not None and not 1 <= self.edges <= MAX_EDGES:
+            raise ConfigError(f"--edges must be between 1 and {MAX_EDGES:,}, got {self.edges}")
         if not (math.isfinite(self.dt) and 0.001 <= self.dt <= 0.5):
             raise ConfigError(f"dt {self.dt:g} s is out of range (0.001 to 0.5)")
         lo, hi = self.duration_range
@@ -76,22 +97,34 @@ class BundleConfig:
             raise ConfigError("ik_restarts, ik_iterations and index_substeps must be positive")
         if self.chunk is not None and self.chunk < 1:
             raise ConfigError(f"chunk must be positive, got {self.chunk}")
+        if self.build_chunk is not None and self.build_chunk < 1:
+            raise ConfigError(f"--chunk must be positive, got {self.build_chunk}")
 
     def rollout_settings(self) -> RolloutSettings:
         return RolloutSettings(dt=self.dt, steps=self.steps, damping=self.damping, unroll_checks=backend() != "cpu")
 
+    def content(self) -> dict:
+        """The fields that define the edges (a resumed build must match them)."""
+        skip = {"chunk", "build_chunk"}
+        return {k: v for k, v in self.__dict__.items() if k not in skip}
+
 
 @dataclass
 class Bundle:
-    """Valid edges, stored flat: edge e's states are rows offset[e] .. offset[e] + length[e] - 1."""
+    """Valid edges, stored flat: edge e's states are rows offset[e] .. offset[e] + length[e] - 1.
+
+    q, qd and p are arrays, or, for a map opened lazily (`mapfile.load_map(lazy=True)`),
+    HDF5 datasets read on demand; everything else is in memory.
+    """
 
     config: BundleConfig
     failure: Failure
     offset: np.ndarray  # (E,) int64
     length: np.ndarray  # (E,) int32, states per edge (control steps + 1)
-    q: np.ndarray  # (S, 7) float32 joint angles (locked joints at their angles)
-    qd: np.ndarray  # (S, 7) float32 joint velocities
-    p: np.ndarray  # (S, 3) float32 world position of the interaction point
+    q: Any  # (S, nq) float32 joint angles (locked joints at their angles)
+    qd: Any  # (S, nq) float32 joint velocities
+    p: Any  # (S, 3) float32 world position of the interaction point
+    q_start: np.ndarray  # (E, nq) float32 each edge's first state (where its transit goes)
     twist: np.ndarray  # (E, 6) float32 commanded linear [m/s] and angular [rad/s] velocity
     duration: np.ndarray  # (E,) float32 [s]
     site: np.ndarray  # (E,) int16 model site index of the interaction point
@@ -115,10 +148,14 @@ class Bundle:
     def n_edges(self) -> int:
         return len(self.offset)
 
+    @property
+    def n_states(self) -> int:
+        return len(self.q)
+
     def edge(self, e: int) -> dict[str, np.ndarray]:
         """The states of edge e."""
         sl = slice(int(self.offset[e]), int(self.offset[e] + self.length[e]))
-        return {"q": self.q[sl], "qd": self.qd[sl], "p": self.p[sl]}
+        return {"q": np.asarray(self.q[sl]), "qd": np.asarray(self.qd[sl]), "p": np.asarray(self.p[sl])}
 
     def edges_over(self, iy: int, ix: int, nx: int) -> np.ndarray:
         """Ids of the edges whose point passes over reach cell (iy, ix) low enough to push there."""
@@ -130,7 +167,7 @@ class Bundle:
             "edges_sampled": self.sampled,
             "edges_valid": self.n_edges,
             "rejected": dict(self.rejected),
-            "states": len(self.q),
+            "states": self.n_states,
             "edge_steps": self.edge_steps,
             "states_evaluated": self.states_evaluated,
             "seconds": round(self.seconds, 4),
@@ -141,99 +178,175 @@ class Bundle:
         }
 
 
-def _rollout_kernel(robot: Robot, failure: Failure, sites: tuple[int, ...], settings: RolloutSettings, chunk: int):
-    free = failure.free(robot.nq)
-    q_fixed = failure.q_fixed(robot.nq)
-    limits = Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
+# ------------------------------------------------------------------------------- sampling
 
-    def one(site, q0, twist, length):
-        return edge_rollout(robot.arm, robot.inertials, limits, settings, free, q_fixed, sites, site, q0, twist, length)
 
-    inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
-    key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings)
-    return ChunkedKernel(key, one, [], inputs, chunk)
+def random_width(robot: Robot, config: BundleConfig) -> int:
+    """Uniforms drawn per edge (a multiple of 4: Philox makes four 64-bit words a step): cell,
+    point, target (2), restarts (M x nq), twist direction (6), speed, duration."""
+    return -(-(12 + config.ik_restarts * robot.nq) // 4) * 4
+
+
+def edge_uniforms(seed: int, start: int, stop: int, width: int) -> np.ndarray:
+    """(stop - start, width) uniforms in [0, 1): row i belongs to edge start + i and is the
+    same whatever range it is drawn in (Philox is counter-based: skip to the range's start)."""
+    bits = np.random.Philox(key=seed)
+    bits.advance(start * width // 4)
+    return np.random.Generator(bits).random((stop - start, width))
 
 
 @dataclass
 class EdgeSamples:
-    """Sampled edges and their solved starts (the inputs of the rollouts)."""
+    """Sampled edges [start, stop) and their solved starts (the inputs of the rollouts)."""
 
+    start: int
     sites: tuple[int, ...]  # model site of each interaction point; `which` indexes it
-    start: np.ndarray  # (n, 2) reach cell (iy, ix)
+    cell: np.ndarray  # (n, 2) reach cell (iy, ix)
     which: np.ndarray  # (n,) int32
     twist: np.ndarray  # (n, 6) float32
     length: np.ndarray  # (n,) int32 control steps
     has_start: np.ndarray  # (n,) bool: the start IK succeeded
     q_start: np.ndarray  # (n, nf) float32 start of the free joints (meaningful where has_start)
-    compile_seconds: float
-    chunk: int
 
 
-def sample_edges(
-    reach: ReachResult, config: BundleConfig, robot: Robot, progress: Progress | None = None
-) -> EdgeSamples:
-    """Sample n edges (cell, point, target, twist, duration) and solve their starts."""
+class EdgeKernels:
+    """The start IK and the rollout programs of one failure's edges, made once per build
+    with fixed launch sizes (so every chunk reuses them).  `sharded` splits every launch
+    over all devices of all processes."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        failure: Failure,
+        config: BundleConfig,
+        n: int,
+        sharded: bool = False,
+        cube_half: float = 0.025,
+    ) -> None:
+        self.robot = robot
+        self.failure = failure
+        self.config = config
+        self.sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
+        devices = 1
+        if sharded:
+            from .sharding import device_count
+
+            devices = device_count()
+        per_chunk = min(config.edges_per_chunk(devices), n)
+        kchunk = config.kernel_chunk()
+        m = config.ik_restarts
+        self.ik = IKBatch(
+            robot,
+            failure,
+            self.sites,
+            default_ik_settings(iterations=config.ik_iterations, cube_half=cube_half),
+            min(kchunk * m, -(-per_chunk * m // (1024 * devices)) * 1024),
+            sharded=sharded,
+        )
+        free = failure.free(robot.nq)
+        q_fixed = failure.q_fixed(robot.nq)
+        limits = Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
+        settings = config.rollout_settings()
+        sites = self.sites
+
+        def one(site, q0, twist, length):
+            arm, inertials = robot.arm, robot.inertials
+            return edge_rollout(arm, inertials, limits, settings, free, q_fixed, sites, site, q0, twist, length)
+
+        inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
+        key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings)
+        roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
+        self.rollout = ChunkedKernel(key, one, [], inputs, roll_chunk, sharded=sharded)
+
+    @property
+    def compile_seconds(self) -> float:
+        return self.ik.compile_seconds + self.rollout.compile_seconds
+
+
+@dataclass
+class EdgeDraws:
+    """What is drawn for edges [start, stop) before their starts are solved."""
+
+    start: int
+    cell: np.ndarray  # (n, 2) reach cell (iy, ix)
+    which: np.ndarray  # (n,) int32 interaction point (index into the kernels' sites)
+    targets: np.ndarray  # (n, 4) x, y, z_lo, z_hi of the point's start
+    q0: np.ndarray  # (n, M, nf) float32 IK restarts
+    twist: np.ndarray  # (n, 6) float32
+    length: np.ndarray  # (n,) int32 control steps
+
+
+def draw_edges(reach: ReachResult, config: BundleConfig, robot: Robot, start: int, stop: int) -> EdgeDraws:
+    """Draw edges [start, stop): cell, point, target, restarts, twist, duration (host only)."""
     failure = reach.failure
-    n = config.n_edges()
-    rng = np.random.default_rng(config.seed)
-    free = failure.free(robot.nq)
-    nf = len(free)
+    n = stop - start
+    free = list(failure.free(robot.nq))
     cells = np.argwhere(reach.labels >= NPM)  # (nc, 2) iy, ix with a solution
     if len(cells) == 0:
         raise ConfigError(f"failure {failure.spec}: no reachable cell on the task plane, so no edge can start")
     sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
     radius = robot.arm.site_radius[list(sites)]
     rc = reach.config
-
-    start = cells[rng.integers(0, len(cells), n)]
-    which = rng.integers(0, len(sites), n).astype(np.int32)
-    xy = np.stack([reach.xs[start[:, 1]], reach.ys[start[:, 0]]], axis=1) + rng.uniform(-0.5, 0.5, (n, 2)) * rc.cell
+    m = config.ik_restarts
+    u = edge_uniforms(config.seed, start, stop, random_width(robot, config))
+    cell = cells[np.minimum((u[:, 0] * len(cells)).astype(np.int64), len(cells) - 1)]
+    which = np.minimum((u[:, 1] * len(sites)).astype(np.int32), len(sites) - 1)
+    xy = np.stack([reach.xs[cell[:, 1]], reach.ys[cell[:, 0]]], axis=1) + (u[:, 2:4] - 0.5) * rc.cell
     z_lo = radius[which]
     z_hi = np.maximum(radius[which], rc.object_height + radius[which] - rc.npm_overlap)
     targets = np.concatenate([xy, z_lo[:, None], z_hi[:, None]], axis=1)
-    lo, hi = robot.lower[list(free)], robot.upper[list(free)]
-    m = config.ik_restarts
-    q0 = (lo + rng.random((n, m, nf)) * (hi - lo)).astype(np.float32)
-    direction = rng.uniform(-1.0, 1.0, (n, 6))
+    lo, hi = robot.lower, robot.upper
+    q0 = (lo + u[:, 4 : 4 + m * robot.nq].reshape(n, m, robot.nq) * (hi - lo))[:, :, free].astype(np.float32)
+    rest = 4 + m * robot.nq
+    direction = 2.0 * u[:, rest : rest + 6] - 1.0
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    speed = rng.uniform(*config.speed_range, n)
+    speed = config.speed_range[0] + u[:, rest + 6] * (config.speed_range[1] - config.speed_range[0])
     twist = (direction * speed[:, None]).astype(np.float32)
-    duration = rng.uniform(*config.duration_range, n)
+    duration = config.duration_range[0] + u[:, rest + 7] * (config.duration_range[1] - config.duration_range[0])
     length = np.clip(np.round(duration / config.dt), 1, config.steps).astype(np.int32)
+    return EdgeDraws(start, cell, which, targets, q0, twist, length)
 
-    chunk = config.chunk or (1 << 17 if backend() != "cpu" else 512)
-    # Starts: position-only IK for the sampled point, M restarts each.
-    ik = IKBatch(
-        robot,
-        failure,
-        sites,
-        default_ik_settings(iterations=config.ik_iterations, cube_half=rc.object_height / 2),
-        min(chunk * m, -(-n * m // 1024) * 1024),
-    )
-    res = ik.solve(
-        np.repeat(targets, m, axis=0),
-        np.repeat(which, m),
+
+def solve_starts(draws: EdgeDraws, kernels: EdgeKernels, progress: Progress | None = None) -> EdgeSamples:
+    """Position-only IK for each drawn edge's start (its M restarts; the first accepted wins)."""
+    n, m, nf = draws.q0.shape
+    res = kernels.ik.solve(
+        np.repeat(draws.targets, m, axis=0),
+        np.repeat(draws.which, m),
         np.zeros(n * m, bool),
-        q0.reshape(n * m, nf),
-        progress=progress.update if progress else None,
+        draws.q0.reshape(n * m, nf),
+        progress=(lambda k: progress.update(k // m)) if progress else None,
     )
     ok = res["ok"].reshape(n, m)
     first = np.argmax(ok, axis=1)
-    q_start = res["q"].reshape(n, m, -1)[np.arange(n), first][:, list(free)].astype(np.float32)
-    return EdgeSamples(sites, start, which, twist, length, ok.any(axis=1), q_start, ik.compile_seconds, chunk)
+    free = list(kernels.failure.free(kernels.robot.nq))
+    q_start = res["q"].reshape(n, m, -1)[np.arange(n), first][:, free].astype(np.float32)
+    return EdgeSamples(draws.start, kernels.sites, draws.cell, draws.which, draws.twist, draws.length,
+                       ok.any(axis=1), q_start)  # fmt: skip
+
+
+def sample_edges(
+    reach: ReachResult,
+    config: BundleConfig,
+    robot: Robot,
+    start: int,
+    stop: int,
+    kernels: EdgeKernels,
+    progress: Progress | None = None,
+) -> EdgeSamples:
+    """Sample edges [start, stop) (cell, point, target, twist, duration) and solve their starts."""
+    return solve_starts(draw_edges(reach, config, robot, start, stop), kernels, progress)
 
 
 def roll_out(
-    robot: Robot, failure: Failure, samples: EdgeSamples, config: BundleConfig, progress: Progress | None = None
-) -> tuple[np.ndarray, dict[str, np.ndarray], ChunkedKernel]:
-    """Roll out the sampled edges that have a start; returns their indices (sampling order),
-    the kernel's per-edge results in that order, and the kernel (for its timings)."""
+    samples: EdgeSamples, kernels: EdgeKernels, progress: Progress | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Roll out the sampled edges that have a start; returns their indices (sampling order)
+    and the kernel's per-edge results in that order."""
     idx = np.nonzero(samples.has_start)[0]
-    # Longest first, so that each chunk's loop stops with edges of about its own length.
+    # Longest first, so that each launch's loop stops with edges of about its own length.
     idx = idx[np.argsort(-samples.length[idx], kind="stable")]
-    roll_chunk = min(samples.chunk, max(1024, -(-len(idx) // 1024) * 1024))
-    kernel = _rollout_kernel(robot, failure, samples.sites, config.rollout_settings(), roll_chunk)
-    out = kernel.run(
+    out = kernels.rollout.run(
         samples.which[idx],
         samples.q_start[idx],
         samples.twist[idx],
@@ -241,105 +354,143 @@ def roll_out(
         progress=progress.update if progress else None,
     )
     back = np.argsort(idx, kind="stable")  # to sampling order
-    return idx[back], {k: v[back] for k, v in out.items()}, kernel
+    return idx[back], {k: v[back] for k, v in out.items()}
 
 
-def build_bundle(
-    reach: ReachResult, config: BundleConfig | None = None, robot: Robot | None = None, progress: bool = False
-) -> Bundle:
-    """Sample, solve and roll out the edges of `reach`'s failure."""
-    robot = robot or load_robot()
-    config = config or BundleConfig()
-    config.validate(robot)
-    failure = reach.failure
-    device = device_description()
-    t_start = time.perf_counter()
-    n = config.n_edges()
-    free = failure.free(robot.nq)
-    bar = Progress(
-        total=n * (config.ik_restarts + 1), desc=f"edges {failure.spec}: start IK", enabled=progress, unit="item"
-    )
-    samples = sample_edges(reach, config, robot, bar)
-    bar.set_description(f"edges {failure.spec}: rollouts")
-    idx, out, kernel = roll_out(robot, failure, samples, config, bar)
-    bar.update(n - len(idx))
-    bar.close()
-    sites, start, which, twist, length = samples.sites, samples.start, samples.which, samples.twist, samples.length
-    radius = robot.arm.site_radius[list(sites)]
+# ---------------------------------------------------------------------------- one chunk
 
+
+@dataclass
+class EdgeChunk:
+    """The valid edges of sampled edges [start, stop), packed, with their index entries."""
+
+    start: int
+    stop: int
+    length: np.ndarray  # (E,) int32 states per edge
+    q: np.ndarray  # (S, nq) float32
+    qd: np.ndarray  # (S, nq) float32
+    p: np.ndarray  # (S, 3) float32
+    twist: np.ndarray  # (E, 6) float32
+    duration: np.ndarray  # (E,) float32
+    site: np.ndarray  # (E,) int16
+    start_cell: np.ndarray  # (E, 2) int32
+    min_manipulability: np.ndarray  # (E,) float32
+    peak_torque_ratio: np.ndarray
+    peak_velocity_ratio: np.ndarray
+    peak_acceleration_ratio: np.ndarray
+    index_cell: np.ndarray  # (K,) int32 reach cell iy * nx + ix
+    index_edge: np.ndarray  # (K,) int32 edge number within this chunk; pairs unique, sorted by (cell, edge)
+    rejected: np.ndarray  # (len(REASONS) + 1,) int64: ik, then REASONS[1:]
+    rolled_out: int  # edges with a start
+    states_evaluated: int
+    seconds: dict = field(default_factory=dict)  # sample / ik / rollout / pack
+
+    ARRAYS = (
+        "length", "q", "qd", "p", "twist", "duration", "site", "start_cell", "min_manipulability",
+        "peak_torque_ratio", "peak_velocity_ratio", "peak_acceleration_ratio", "index_cell", "index_edge", "rejected",
+    )  # fmt: skip
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.length)
+
+
+def reasons() -> tuple[str, ...]:
+    """The rejection reasons a chunk counts, in order."""
+    return (IK_FAILED, *REASONS[1:])
+
+
+def process_chunk(
+    reach: ReachResult,
+    config: BundleConfig,
+    robot: Robot,
+    start: int,
+    stop: int,
+    kernels: EdgeKernels,
+    progress: Progress | None = None,
+) -> EdgeChunk:
+    """Sample, solve and roll out edges [start, stop); pack the valid ones."""
+    t0 = time.perf_counter()
+    samples = sample_edges(reach, config, robot, start, stop, kernels, progress)
+    t1 = time.perf_counter()
+    idx, out = roll_out(samples, kernels, progress)
+    if progress is not None:
+        progress.update(stop - start - len(idx))
+    t2 = time.perf_counter()
+    chunk = pack_chunk(reach, config, robot, samples, idx, out)
+    chunk.seconds = {"sample_ik": t1 - t0, "rollout": t2 - t1, "pack": time.perf_counter() - t2}
+    return chunk
+
+
+def pack_chunk(
+    reach: ReachResult, config: BundleConfig, robot: Robot, samples: EdgeSamples, idx: np.ndarray, out: dict
+) -> EdgeChunk:
+    """The valid edges of a rolled-out chunk, flat, with their spatial-index entries."""
+    free = list(reach.failure.free(robot.nq))
+    n = len(samples.which)
     valid_local = out["valid"].astype(bool)
     keep = idx[valid_local]
-    rejected = {IK_FAILED: int(n - len(idx))}
-    for code, name in enumerate(REASONS[1:], start=1):
-        rejected[name] = int(np.sum(out["reason"][~valid_local] == code))
-
-    lens = length[keep] + 1  # states per edge
-    offset = np.zeros(len(keep), np.int64)
-    if len(keep):
-        offset[1:] = np.cumsum(lens)[:-1]
+    rejected = np.zeros(len(REASONS), np.int64)
+    rejected[0] = n - len(idx)
+    for code in range(1, len(REASONS)):
+        rejected[code] = int(np.sum(out["reason"][~valid_local] == code))
+    lens = (samples.length[keep] + 1).astype(np.int32)  # states per edge
     rows = np.concatenate([np.arange(k) for k in lens]) if len(keep) else np.zeros(0, np.int64)
     e_of_row = np.repeat(np.arange(len(keep)), lens)
     src = np.nonzero(valid_local)[0][e_of_row]
-    q_fixed = failure.q_fixed(robot.nq).astype(np.float32)
-    q_full = np.broadcast_to(q_fixed, (len(rows), robot.nq)).copy()
-    qd_full = np.zeros((len(rows), robot.nq), np.float32)
-    q_full[:, list(free)] = out["q"][src, rows]
-    qd_full[:, list(free)] = out["qd"][src, rows]
+    q_fixed = reach.failure.q_fixed(robot.nq).astype(np.float32)
+    q = np.broadcast_to(q_fixed, (len(rows), robot.nq)).copy()
+    qd = np.zeros((len(rows), robot.nq), np.float32)
+    q[:, free] = out["q"][src, rows]
+    qd[:, free] = out["qd"][src, rows]
     p = out["p"][src, rows].astype(np.float32)
-
-    index_offset, index_edges = spatial_index(
-        reach, p, e_of_row, offset, lens, radius[which[keep]], config.index_height, config.index_substeps
-    )
-    return Bundle(
-        config=config,
-        failure=failure,
-        offset=offset,
-        length=lens.astype(np.int32),
-        q=q_full,
-        qd=qd_full,
+    radius = robot.arm.site_radius[list(samples.sites)][samples.which[keep]]
+    index_cell, index_edge = index_pairs(reach, p, lens, radius, config.index_height, config.index_substeps)
+    evaluated = int(np.sum(np.where(out["valid"], samples.length[idx], out["fail_step"]) + 1))
+    return EdgeChunk(
+        start=samples.start,
+        stop=samples.start + n,
+        length=lens,
+        q=q,
+        qd=qd,
         p=p,
-        twist=twist[keep],
-        duration=(length[keep] * config.dt).astype(np.float32),
-        site=np.array(sites, np.int16)[which[keep]],
-        start_cell=start[keep].astype(np.int32),
+        twist=samples.twist[keep],
+        duration=(samples.length[keep] * config.dt).astype(np.float32),
+        site=np.array(samples.sites, np.int16)[samples.which[keep]],
+        start_cell=samples.cell[keep].astype(np.int32),
         min_manipulability=out["min_manipulability"][valid_local].astype(np.float32),
         peak_torque_ratio=out["peak_torque_ratio"][valid_local].astype(np.float32),
         peak_velocity_ratio=out["peak_velocity_ratio"][valid_local].astype(np.float32),
         peak_acceleration_ratio=out["peak_acceleration_ratio"][valid_local].astype(np.float32),
-        index_offset=index_offset,
-        index_edges=index_edges,
-        sampled=n,
+        index_cell=index_cell,
+        index_edge=index_edge,
         rejected=rejected,
-        seconds=time.perf_counter() - t_start - samples.compile_seconds - kernel.compile_seconds,
-        compile_seconds=samples.compile_seconds + kernel.compile_seconds,
-        rollout_seconds=kernel.kernel_seconds,
-        edge_steps=len(idx) * config.steps,
-        states_evaluated=int(np.sum(np.where(out["valid"], length[idx], out["fail_step"]) + 1)),
-        device=device,
+        rolled_out=len(idx),
+        states_evaluated=evaluated,
     )
 
 
-def spatial_index(
+def index_pairs(
     reach: ReachResult,
     p: np.ndarray,
-    edge_of_row: np.ndarray,
-    offset: np.ndarray,
     length: np.ndarray,
     edge_radius: np.ndarray,
     height: float,
     substeps: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """CSR lists, per reach cell, of the edges whose point passes over the cell with the
-    link's lowest surface at most `height` above the table.  Each step segment is sampled at
-    `substeps` points, so a point moving up to a cell per step is not missed."""
+    """(cell, edge) pairs, unique and sorted by cell then edge: the edges (numbered as
+    `length` lists them) whose point passes over a reach cell with the link's lowest surface
+    at most `height` above the table.  Each step segment is sampled at `substeps` points, so
+    a point moving up to a cell per step is not missed."""
     ny, nx = reach.labels.shape
     cell = reach.config.cell
     x0 = reach.xs[0] - cell / 2
     y0 = reach.ys[0] - cell / 2
+    edge_of_row = np.repeat(np.arange(len(length)), length)
     pts, owners = [p], [edge_of_row]
     if len(p):
         last = np.zeros(len(p), bool)
-        last[offset + length - 1] = True
+        last[np.cumsum(length) - 1] = True
         a = np.nonzero(~last)[0]
         for s in range(1, substeps):
             t = s / substeps
@@ -351,10 +502,104 @@ def spatial_index(
     ix = np.floor((pts_all[:, 0] - x0) / cell).astype(np.int64)
     iy = np.floor((pts_all[:, 1] - y0) / cell).astype(np.int64)
     inside = low & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    pairs = np.unique((iy[inside] * nx + ix[inside]) * max(1, len(offset)) + own[inside])
-    cells = pairs // max(1, len(offset))
-    edges = (pairs % max(1, len(offset))).astype(np.int32)
-    counts = np.bincount(cells, minlength=ny * nx)
-    index_offset = np.zeros(ny * nx + 1, np.int64)
-    index_offset[1:] = np.cumsum(counts)
-    return index_offset, edges
+    width = max(1, len(length))
+    keys = np.unique((iy[inside] * nx + ix[inside]) * width + own[inside])
+    return (keys // width).astype(np.int32), (keys % width).astype(np.int32)
+
+
+def csr(cells: np.ndarray, edges: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR offsets (n_cells + 1,) and edge ids of (cell, edge) pairs sorted by cell."""
+    offset = np.zeros(n_cells + 1, np.int64)
+    offset[1:] = np.cumsum(np.bincount(cells, minlength=n_cells))
+    return offset, edges.astype(np.int32)
+
+
+# ---------------------------------------------------------------------------- in memory
+
+
+def chunk_ranges(n: int, size: int, start: int = 0) -> list[tuple[int, int]]:
+    return [(a, min(a + size, n)) for a in range(start, n, size)]
+
+
+def build_bundle(
+    reach: ReachResult,
+    config: BundleConfig | None = None,
+    robot: Robot | None = None,
+    progress: bool = False,
+    sharded: bool = False,
+) -> Bundle:
+    """Sample, solve and roll out the edges of `reach`'s failure, all in memory (the same
+    edges `lmjx.edgestream` writes to a file in bounded memory)."""
+    robot = robot or load_robot()
+    config = config or BundleConfig()
+    config.validate(robot)
+    failure = reach.failure
+    device = device_description()
+    t_start = time.perf_counter()
+    n = config.n_edges()
+    kernels = EdgeKernels(robot, failure, config, n, sharded, reach.config.object_height / 2)
+    bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress, unit="edge")
+    chunks = [
+        process_chunk(reach, config, robot, a, b, kernels, bar)
+        for a, b in chunk_ranges(n, config.edges_per_chunk(1 if not sharded else _devices()))
+    ]
+    bar.close()
+    seconds = time.perf_counter() - t_start - kernels.compile_seconds
+    return pack(config, reach, chunks, n, kernels, seconds, device)
+
+
+def _devices() -> int:
+    from .sharding import device_count
+
+    return device_count()
+
+
+def pack(
+    config: BundleConfig,
+    reach: ReachResult,
+    chunks: list[EdgeChunk],
+    n: int,
+    kernels: EdgeKernels,
+    seconds: float,
+    device: str,
+) -> Bundle:
+    """One `Bundle` of consecutive chunks (edge ids and rows renumbered)."""
+    lens = np.concatenate([c.length for c in chunks])
+    offset = np.zeros(len(lens), np.int64)
+    if len(lens):
+        offset[1:] = np.cumsum(lens)[:-1]
+    first_edge = np.cumsum([0, *(c.n_edges for c in chunks)])[:-1]
+    cells = np.concatenate([c.index_cell for c in chunks])
+    edges = np.concatenate([c.index_edge + e0 for c, e0 in zip(chunks, first_edge, strict=True)])
+    order = np.lexsort((edges, cells))
+    index_offset, index_edges = csr(cells[order], edges[order], reach.labels.size)
+    rejected = np.sum([c.rejected for c in chunks], axis=0)
+    q = np.concatenate([c.q for c in chunks])
+    return Bundle(
+        config=config,
+        failure=reach.failure,
+        offset=offset,
+        length=lens,
+        q=q,
+        qd=np.concatenate([c.qd for c in chunks]),
+        p=np.concatenate([c.p for c in chunks]),
+        q_start=q[offset] if len(offset) else np.zeros((0, q.shape[1]), np.float32),
+        twist=np.concatenate([c.twist for c in chunks]),
+        duration=np.concatenate([c.duration for c in chunks]),
+        site=np.concatenate([c.site for c in chunks]),
+        start_cell=np.concatenate([c.start_cell for c in chunks]),
+        min_manipulability=np.concatenate([c.min_manipulability for c in chunks]),
+        peak_torque_ratio=np.concatenate([c.peak_torque_ratio for c in chunks]),
+        peak_velocity_ratio=np.concatenate([c.peak_velocity_ratio for c in chunks]),
+        peak_acceleration_ratio=np.concatenate([c.peak_acceleration_ratio for c in chunks]),
+        index_offset=index_offset,
+        index_edges=index_edges,
+        sampled=n,
+        rejected={r: int(k) for r, k in zip(reasons(), rejected, strict=True)},
+        seconds=seconds,
+        compile_seconds=kernels.compile_seconds,
+        rollout_seconds=kernels.rollout.kernel_seconds,
+        edge_steps=sum(c.rolled_out for c in chunks) * config.steps,
+        states_evaluated=sum(c.states_evaluated for c in chunks),
+        device=device,
+    )

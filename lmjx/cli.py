@@ -133,17 +133,34 @@ def build_parser() -> argparse.ArgumentParser:
         "and an interaction point, a constant twist followed for a sampled duration with the arm's dynamics "
         "(tau = M qdd + C qd + g + friction), rejecting any edge that breaks a position, velocity, acceleration "
         "or torque limit or collides with the table or itself.  Valid edges are stored with every state and a "
-        "spatial index per cell (schema: maps/README.md).",
+        "spatial index per cell (schema: maps/README.md).  Any number of edges: they are computed and saved in "
+        "chunks (bounded memory) into <out>.partial, and the map is assembled from them at the end; a preflight "
+        "first says how large and how long; an interrupted build (Ctrl-C, a kill) continues when the same command "
+        "runs again.  Every local accelerator shares the work; several hosts: the same command on each with "
+        "--coordinator HOST:PORT --num-processes N --process-id I.",
     )
     p.add_argument("--failure", required=True, help="none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
     p.add_argument(
         "--edges",
         type=_positive_int,
-        help="edges to sample (default: 10,000 on a CPU, 100,000 on a GPU); only valid ones are stored",
+        help="edges to sample, up to 50,000,000 (default: 10,000 on a CPU, 100,000 on a GPU); only valid ones "
+        "are stored",
     )
     p.add_argument("--out", help="map file to write (default maps/<failure>.h5)")
     p.add_argument("--seed", type=int, default=0, help="random seed for the map and the edges (default 0)")
     p.add_argument("--cell", type=_positive_float, default=0.02, help="reach cell edge in metres (default 0.02)")
+    p.add_argument(
+        "--chunk",
+        type=_positive_int,
+        help="edges computed and saved at a time (default: by platform); not part of the result",
+    )
+    p.add_argument(
+        "--yes", action="store_true", help="start even when the preflight estimates more than a day of work"
+    )
+    p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
+    p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
+    p.add_argument("--num-processes", type=_positive_int, default=1, help="multi-process runs: how many (default 1)")
+    p.add_argument("--process-id", type=int, default=0, help="multi-process runs: this process's rank (default 0)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     _add_device(p)
 
@@ -454,43 +471,71 @@ def _default_map_path(spec: str) -> str:
 
 
 def cmd_build_map(args: argparse.Namespace) -> int:
-    from .bundle import BundleConfig, build_bundle
+    from .bundle import BundleConfig
+    from .edgestream import build_map, partial_path
     from .failure import parse_failure
-    from .fileio import check_writable
-    from .reach import ReachConfig, reach_map
+    from .reach import ReachConfig
     from .robot import load_robot
+
+    if args.coordinator or args.num_processes > 1:
+        if not args.coordinator:
+            from .errors import ConfigError
+
+            raise ConfigError("--num-processes > 1 needs --coordinator HOST:PORT")
+        from .sharding import init_distributed
+
+        init_distributed(args.coordinator, args.num_processes, args.process_id)
+    import jax
 
     robot = load_robot()
     failure = parse_failure(args.failure, robot)
     reach_cfg = ReachConfig(cell=args.cell, seed=args.seed)
-    reach_cfg.validate(robot)
-    bundle_cfg = BundleConfig(edges=args.edges, seed=args.seed)
-    bundle_cfg.validate(robot)
+    bundle_cfg = BundleConfig(edges=args.edges, seed=args.seed, build_chunk=args.chunk)
     out = args.out or _default_map_path(failure.spec)
-    check_writable(out, "map file")
-    reach = reach_map(failure, reach_cfg, robot=robot, progress=True)
-    bundle = build_bundle(reach, bundle_cfg, robot=robot, progress=True)
-    from .mapfile import write_map
+    lead = jax.process_index() == 0
+    try:
+        s = build_map(
+            out, failure, reach_cfg, bundle_cfg, robot, progress=True, sharded=not args.no_shard, yes=args.yes,
+            say=lambda line: print(line, file=sys.stderr),
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        print(
+            f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
+            f"{partial_path(out)}: rerun the same command to continue",
+            file=sys.stderr,
+        )
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
+    if not lead:
+        return 0
+    from .mapfile import load_map
 
-    sizes = write_map(out, reach, bundle, robot)
-    s = bundle.summary()
+    m = load_map(out, robot, lazy=True)
+    reach = m.reach
+    assert reach is not None
     summary = {
         "failure": failure.spec,
         "out": out,
         "seed": args.seed,
         "reach": {k: reach.summary()[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")},
-        "edges": s,
-        "bytes_per_state": round(sizes.get("bytes_per_state", 0.0), 2),
-        "raw_bytes_per_state": round(sizes.get("raw_bytes_per_state", 0.0), 2),
+        "edges": {k: v for k, v in s.items() if k not in ("bytes_per_state", "raw_bytes_per_state")},
+        "bytes_per_state": round(s.get("bytes_per_state", 0.0), 2),
+        "raw_bytes_per_state": round(s.get("raw_bytes_per_state", 0.0), 2),
         "device": s["device"],
+        "devices": s["devices"],
+        "processes": s["processes"],
     }
+    m.close()
     rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)
     lines = [
-        f"failure {failure.describe()} on {s['device']}: map written to {out}",
+        f"failure {failure.describe()} on {s['device']} ({s['devices']} device(s), {s['processes']} process(es)): "
+        f"map written to {out}",
         f"  reach: PM {reach.areas()['pm']:.4f} m^2, NPM+PM {reach.areas()['npm_pm']:.4f} m^2 ({reach.seconds:.2f} s)",
         f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
         f"  rollouts: {s['edge_steps']:,} edge-steps in {s['rollout_seconds']:.2f} s "
-        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile",
+        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile "
+        f"(of which writing the map alongside {s['write_seconds']:.1f} s, its index {s['finish_seconds']:.1f} s)",
         f"  storage: {summary['bytes_per_state']:.1f} bytes per stored state "
         f"({summary['raw_bytes_per_state']:.0f} uncompressed)",
     ]
@@ -501,7 +546,7 @@ def cmd_build_map(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     from .mapfile import load_map
 
-    m = load_map(args.path)
+    m = load_map(args.path, lazy=True)  # the states stay in the file: a map of any size answers at once
     info: dict = {
         "path": str(m.path),
         "schema_version": int(m.attrs["schema_version"]),

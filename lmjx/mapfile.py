@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,63 +102,183 @@ def write_map(path: str | Path, reach: ReachResult, bundle: Bundle | None, robot
     sizes: dict = {}
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w", track_order=True) as f:
-            _write_header(f, robot, reach.failure, contents="reach" if bundle is None else "reach+edges")
-            _write_robot(f, robot)
-            _write_reach(f, reach)
+            write_head(f, robot, reach, with_edges=bundle is not None)
             if bundle is not None:
-                sizes = _write_edges(f, bundle, reach)
-        if bundle is not None and len(bundle.q):
-            sizes["file_bytes_per_state"] = Path(tmp).stat().st_size / len(bundle.q)
+                w = EdgeWriter(f, bundle.config, reach, robot.nq)
+                w.add_states(bundle.q, bundle.qd, bundle.p)
+                w.add_edges({name: getattr(bundle, name) for name in PER_EDGE})
+                write_index(w.group, reach, bundle.index_offset, bundle.index_edges)
+                sizes = w.close(bundle_attrs(bundle))
+        if bundle is not None and bundle.n_states:
+            sizes["file_bytes_per_state"] = Path(tmp).stat().st_size / bundle.n_states
     return sizes
 
 
-def _write_edges(f: h5py.File, b: Bundle, reach: ReachResult) -> dict:
-    g = f.create_group("edges", track_order=True)
-    g.attrs["doc"] = (
-        "Edge bundle (paper Algorithm 2): valid edges stored flat; edge e's states are rows "
-        "offset[e] .. offset[e] + length[e] - 1 of q, qd and p."
-    )
-    _config_to_attrs(g, b.config)
-    g.attrs["steps_max"] = b.config.steps
-    g.attrs["edges_sampled"] = b.sampled
-    g.attrs["edges_valid"] = b.n_edges
-    for reason, count in b.rejected.items():
-        g.attrs[f"rejected_{reason}"] = count
-    for k in ("seconds", "compile_seconds", "rollout_seconds"):
-        g.attrs[k] = getattr(b, k)
-    g.attrs["edge_steps"] = b.edge_steps
-    g.attrs["states_evaluated"] = b.states_evaluated
-    g.attrs["device"] = b.device
-    per_state = {
-        "q": (b.q, "joint angles J1..J7 at each state [rad] (locked joints at their angles)"),
-        "qd": (b.qd, "joint velocities J1..J7 at each state [rad/s] (J^+ of the twist)"),
-        "p": (b.p, "world position of the edge's interaction point at each state [m]"),
+def write_head(f: h5py.File, robot: Robot, reach: ReachResult, with_edges: bool) -> None:
+    """Root attributes, /robot and /reach of a map file."""
+    _write_header(f, robot, reach.failure, contents="reach+edges" if with_edges else "reach")
+    _write_robot(f, robot)
+    _write_reach(f, reach)
+
+
+PER_EDGE = {
+    "length": "states per edge (control steps + 1)",
+    "q_start": "joint angles J1..J7 of each edge's first state [rad] (= q[offset]: where its transit goes)",
+    "twist": "commanded twist of the interaction point: vx, vy, vz [m/s], wx, wy, wz [rad/s]",
+    "duration": "edge duration [s] = (length - 1) * dt",
+    "site": "index into /robot/site_names of the edge's interaction point",
+    "start_cell": "(iy, ix) of the reach cell the edge starts from",
+    "min_manipulability": "smallest sqrt(det(J J^T)) along the edge",
+    "peak_torque_ratio": "max |tau_i| / tau_max_i over free joints and states",
+    "peak_velocity_ratio": "max |qd_i| / qd_max_i",
+    "peak_acceleration_ratio": "max |qdd_i| / qdd_max_i",
+}
+PER_STATE = {
+    "q": "joint angles J1..J7 at each state [rad] (locked joints at their angles)",
+    "qd": "joint velocities J1..J7 at each state [rad/s] (J^+ of the twist)",
+    "p": "world position of the edge's interaction point at each state [m]",
+}
+STATE_ROWS = 16384  # rows per HDF5 chunk of q, qd, p
+EDGE_ROWS = 65536  # rows per HDF5 chunk of the per-edge arrays
+
+
+def bundle_attrs(b: Bundle) -> dict:
+    """What /edges' attributes say about a build."""
+    return {
+        "edges_sampled": b.sampled,
+        "rejected": b.rejected,
+        "seconds": b.seconds,
+        "compile_seconds": b.compile_seconds,
+        "rollout_seconds": b.rollout_seconds,
+        "edge_steps": b.edge_steps,
+        "states_evaluated": b.states_evaluated,
+        "device": b.device,
     }
-    for name, (data, doc) in per_state.items():
-        ds = g.create_dataset(
-            name,
-            data=data,
-            chunks=(min(max(len(data), 1), 16384), data.shape[1]),
-            compression="gzip",
-            compression_opts=4,
-            shuffle=True,
-            track_times=False,
+
+
+class EdgeWriter:
+    """Writes /edges of a map file piece by piece, in bounded memory: states (q, qd, p) in
+    HDF5 chunks of `STATE_ROWS` rows, compressed (HDF5's own shuffle and deflate filters,
+    readable by any HDF5 library) on all cores and written as they fill; per-edge arrays
+    appended as they come, `offset` computed from the lengths."""
+
+    def __init__(
+        self, f: h5py.File, config: BundleConfig, reach: ReachResult, nq: int, threads: int | None = None
+    ) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        g = f.create_group("edges", track_order=True)
+        g.attrs["doc"] = (
+            "Edge bundle (paper Algorithm 2): valid edges stored flat; edge e's states are rows "
+            "offset[e] .. offset[e] + length[e] - 1 of q, qd and p."
         )
-        ds.attrs["doc"] = doc
-    per_edge = {
-        "offset": (b.offset, "first row of each edge in q, qd, p"),
-        "length": (b.length, "states per edge (control steps + 1)"),
-        "twist": (b.twist, "commanded twist of the interaction point: vx, vy, vz [m/s], wx, wy, wz [rad/s]"),
-        "duration": (b.duration, "edge duration [s] = (length - 1) * dt"),
-        "site": (b.site, "index into /robot/site_names of the edge's interaction point"),
-        "start_cell": (b.start_cell, "(iy, ix) of the reach cell the edge starts from"),
-        "min_manipulability": (b.min_manipulability, "smallest sqrt(det(J J^T)) along the edge"),
-        "peak_torque_ratio": (b.peak_torque_ratio, "max |tau_i| / tau_max_i over free joints and states"),
-        "peak_velocity_ratio": (b.peak_velocity_ratio, "max |qd_i| / qd_max_i"),
-        "peak_acceleration_ratio": (b.peak_acceleration_ratio, "max |qdd_i| / qdd_max_i"),
-    }
-    for name, (data, doc) in per_edge.items():
-        _dataset(g, name, data, doc)
+        _config_to_attrs(g, config)
+        g.attrs["steps_max"] = config.steps
+        self.group = g
+        self.widths = {"q": nq, "qd": nq, "p": 3}
+        self.states: dict[str, h5py.Dataset] = {}
+        for name, doc in PER_STATE.items():
+            ds = g.create_dataset(
+                name,
+                shape=(0, self.widths[name]),
+                maxshape=(None, self.widths[name]),
+                dtype=np.float32,
+                chunks=(STATE_ROWS, self.widths[name]),
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+                track_times=False,
+            )
+            ds.attrs["doc"] = doc
+            self.states[name] = ds
+        self.pending: dict[str, list[np.ndarray]] = {name: [] for name in PER_STATE}  # rows not yet written
+        self.written = 0  # rows written (whole chunks, until the last)
+        self.rows = 0  # rows given
+        self.pool = ThreadPoolExecutor(threads or os.cpu_count() or 1)
+        self.edges: dict[str, h5py.Dataset] = {}
+        self.n_edges = 0
+        self.next_offset = 0
+
+    def add_states(self, q: np.ndarray, qd: np.ndarray, p: np.ndarray) -> None:
+        for name, rows in (("q", q), ("qd", qd), ("p", p)):
+            self.pending[name].append(np.asarray(rows, np.float32))
+        self.rows += len(q)
+        self._flush(final=False)
+
+    def _flush(self, final: bool) -> None:
+        n = self.rows - self.written if final else (self.rows - self.written) // STATE_ROWS * STATE_ROWS
+        if n == 0:
+            return
+        for name in PER_STATE:
+            buf = np.concatenate(self.pending[name])
+            data, rest = buf[:n], buf[n:]
+            self.pending[name] = [rest] if len(rest) else []
+            ds = self.states[name]
+            ds.resize((self.written + n, self.widths[name]))
+            starts = list(range(0, n, STATE_ROWS))
+            blocks = [data[a : a + STATE_ROWS] for a in starts]
+            payloads = self.pool.map(_compress_rows, blocks, [self.widths[name]] * len(blocks))
+            for a, payload in zip(starts, payloads, strict=True):
+                ds.id.write_direct_chunk((self.written + a, 0), payload, 0)
+        self.written += n
+
+    def add_edges(self, arrays: dict[str, np.ndarray]) -> None:
+        """Per-edge arrays (`PER_EDGE`) of the next edges, whose states came already, in order."""
+        length = np.asarray(arrays["length"])
+        offset = self.next_offset + np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
+        self.next_offset += int(length.sum())
+        for name, data in {"offset": offset[: len(length)], **arrays}.items():
+            data = np.asarray(data)
+            ds = self.edges.get(name)
+            if ds is None:
+                ds = self.group.create_dataset(
+                    name,
+                    shape=(0, *data.shape[1:]),
+                    maxshape=(None, *data.shape[1:]),
+                    dtype=data.dtype,
+                    chunks=(EDGE_ROWS, *data.shape[1:]),
+                    compression="gzip",
+                    compression_opts=4,
+                    shuffle=True,
+                    track_times=False,
+                )
+                ds.attrs["doc"] = "first row of each edge in q, qd, p" if name == "offset" else PER_EDGE[name]
+                self.edges[name] = ds
+            ds.resize((self.n_edges + len(data), *data.shape[1:]))
+            if len(data):
+                ds[self.n_edges :] = data
+        self.n_edges += len(length)
+
+    def close(self, attrs: dict) -> dict:
+        """The last states, the build's attributes; storage figures back."""
+        self._flush(final=True)
+        self.pool.shutdown()
+        g = self.group
+        g.attrs["edges_sampled"] = attrs["edges_sampled"]
+        g.attrs["edges_valid"] = self.n_edges
+        for reason, count in attrs["rejected"].items():
+            g.attrs[f"rejected_{reason}"] = count
+        for k in ("seconds", "compile_seconds", "rollout_seconds", "edge_steps", "states_evaluated", "device"):
+            g.attrs[k] = attrs[k]
+        n_states = max(self.rows, 1)
+        stored = sum(g[k].id.get_storage_size() for k in PER_STATE)
+        raw = sum(self.rows * self.widths[k] * 4 for k in PER_STATE)
+        g.attrs["bytes_per_state"] = stored / n_states
+        g.attrs["raw_bytes_per_state"] = raw / n_states
+        return {"bytes_per_state": stored / n_states, "raw_bytes_per_state": raw / n_states}
+
+
+def _compress_rows(rows: np.ndarray, width: int) -> bytes:
+    """One HDF5 chunk (STATE_ROWS x width float32) through the shuffle and deflate filters;
+    zlib releases the interpreter lock, so chunks compress in parallel."""
+    block = np.zeros((STATE_ROWS, width), np.float32)
+    block[: len(rows)] = rows
+    return zlib.compress(block.view(np.uint8).reshape(-1, 4).T.tobytes(), 4)
+
+
+def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np.ndarray | None) -> h5py.Dataset:
+    """/edges/index: the CSR offsets, and the edge ids (`edges`, or left for the caller to
+    fill into the returned dataset when None)."""
     idx = g.create_group("index", track_order=True)
     idx.attrs["doc"] = (
         "Edges over each reach cell (CSR): the edges of cell c = iy * nx + ix are "
@@ -166,15 +288,24 @@ def _write_edges(f: h5py.File, b: Bundle, reach: ReachResult) -> dict:
     idx.attrs["nx"] = len(reach.xs)
     idx.attrs["ny"] = len(reach.ys)
     idx.attrs["cell"] = reach.config.cell
-    idx.attrs["height"] = b.config.index_height
-    _dataset(idx, "offset", b.index_offset, "CSR offsets, length ny * nx + 1")
-    _dataset(idx, "edges", b.index_edges, "edge ids")
-    n_states = max(len(b.q), 1)
-    stored = sum(g[k].id.get_storage_size() for k in ("q", "qd", "p"))
-    raw = sum(np.asarray(g[k]).nbytes for k in ("q", "qd", "p"))
-    g.attrs["bytes_per_state"] = stored / n_states
-    g.attrs["raw_bytes_per_state"] = raw / n_states
-    return {"bytes_per_state": stored / n_states, "raw_bytes_per_state": raw / n_states}
+    idx.attrs["height"] = float(g.attrs["index_height"])
+    _dataset(idx, "offset", offset, "CSR offsets, length ny * nx + 1")
+    if edges is not None:
+        _dataset(idx, "edges", edges, "edge ids")
+        return idx["edges"]
+    total = int(offset[-1])
+    ds = idx.create_dataset(
+        "edges",
+        shape=(total,),
+        dtype=np.int32,
+        chunks=(min(max(total, 1), 1 << 18),),
+        compression="gzip",
+        compression_opts=4,
+        shuffle=True,
+        track_times=False,
+    )
+    ds.attrs["doc"] = "edge ids"
+    return ds
 
 
 def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -> None:
@@ -189,9 +320,14 @@ def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -
     f.attrs["contents"] = contents
 
 
+LAZY_BYTES = 512 * 2**20  # edge states larger than this are read on demand (load_map's default)
+CACHE_BYTES = 256 * 2**20  # HDF5 chunk cache per state dataset of a lazily opened map
+
+
 @dataclass
 class MapFile:
-    """A validated map file, read into memory."""
+    """A validated map file: everything in memory, but for the edges' states of a lazily
+    opened map (`lazy`), which stay in the file (kept open) and are read on demand."""
 
     path: Path
     attrs: dict
@@ -199,14 +335,28 @@ class MapFile:
     reach: ReachResult | None
     edges: Bundle | None = None
     edges_attrs: dict = dataclasses.field(default_factory=dict)
+    lazy: bool = False
+    file: h5py.File | None = dataclasses.field(default=None, repr=False)
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+            self.file = None
 
 
 def _attr_str(x: object) -> str:
     return x.decode() if isinstance(x, bytes) else str(x)
 
 
-def load_map(path: str | Path, robot: Robot | None = None, check_robot: bool = True) -> MapFile:
-    """Open and validate a map file; raise MapFileError (one line) when it is unusable."""
+def load_map(
+    path: str | Path, robot: Robot | None = None, check_robot: bool = True, lazy: bool | None = None
+) -> MapFile:
+    """Open and validate a map file; raise MapFileError (one line) when it is unusable.
+
+    The reach map, the per-edge arrays and the spatial index are read at once; the edge
+    states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which
+    stays open (a map larger than memory is usable).  lazy=None: lazy when the states would
+    take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions."""
     p = Path(path)
     if not p.exists():
         raise MapFileError(f"map file {p} does not exist")
@@ -220,7 +370,12 @@ def load_map(path: str | Path, robot: Robot | None = None, check_robot: bool = T
         raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)")
     robot = robot or load_robot()
     try:
-        with h5py.File(p, "r") as f:
+        f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+    except OSError as e:
+        raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
+    keep_open = False
+    try:
+        with f:
             attrs = {k: f.attrs[k] for k in f.attrs}
             if _attr_str(attrs.get("schema", "")) != SCHEMA:
                 raise MapFileError(f"{p} is an HDF5 file but not an lmjx map (no schema='{SCHEMA}' attribute)")
@@ -241,13 +396,23 @@ def load_map(path: str | Path, robot: Robot | None = None, check_robot: bool = T
             fail_name = _attr_str(attrs["failure"])
             failure = Failure(fail_name, locked)
             reach = _read_reach(f["reach"], failure, robot, attrs) if "reach" in f else None
-            edges = _read_edges(f["edges"], failure) if "edges" in f else None
+            edges = None
+            if "edges" in f:
+                g = f["edges"]
+                states_bytes = sum(g[k].size * g[k].dtype.itemsize for k in ("q", "qd", "p"))
+                lazy = states_bytes > LAZY_BYTES if lazy is None else lazy
+                edges = _read_edges(g, failure, lazy)
+                keep_open = lazy
             edges_attrs = dict(f["edges"].attrs) if "edges" in f else {}
+            if keep_open:  # the with block must not close it: reopen the handle it holds
+                f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+                g = f["edges"]
+                edges.q, edges.qd, edges.p = g["q"], g["qd"], g["p"]
     except MapFileError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
-    return MapFile(p, attrs, failure, reach, edges, edges_attrs)
+    return MapFile(p, attrs, failure, reach, edges, edges_attrs, lazy=keep_open, file=f if keep_open else None)
 
 
 def _config_to_attrs(g: h5py.Group, config: object) -> None:
@@ -308,21 +473,28 @@ def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> Re
     )
 
 
-def _read_edges(g: h5py.Group, failure: Failure) -> Bundle:
+def _read_edges(g: h5py.Group, failure: Failure, lazy: bool) -> Bundle:
     a = dict(g.attrs)
     offset = g["offset"][...]
     length = g["length"][...]
-    q = g["q"][...]
+    q = g["q"] if lazy else g["q"][...]
     if len(offset) and int(offset[-1] + length[-1]) != len(q):
         raise MapFileError("the edge offsets do not match the stored states; rebuild the map")
+    if "q_start" in g:
+        q_start = g["q_start"][...]
+    elif lazy:  # a map written before q_start was stored
+        q_start = np.concatenate([q[o : o + 1] for o in offset]) if len(offset) else np.zeros((0, q.shape[1]))
+    else:
+        q_start = q[offset]
     return Bundle(
         config=_config_from_attrs(BundleConfig, a),
         failure=failure,
         offset=offset,
         length=length,
         q=q,
-        qd=g["qd"][...],
-        p=g["p"][...],
+        qd=g["qd"] if lazy else g["qd"][...],
+        p=g["p"] if lazy else g["p"][...],
+        q_start=q_start.astype(np.float32),
         twist=g["twist"][...],
         duration=g["duration"][...],
         site=g["site"][...],

@@ -130,7 +130,7 @@ def test_build_map_bad_input_and_interrupt(tmp_path):
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130 and "Traceback" not in err
-    assert list(tmp_path.iterdir()) == []
+    assert [x.name for x in tmp_path.iterdir()] in ([], ["map.h5.partial"])  # the chunks done, for a rerun
 
 
 @pytest.fixture(scope="module")

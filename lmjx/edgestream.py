@@ -1,0 +1,444 @@
+"""Maps of any size: `lmjx build-map` in bounded memory, streamed to HDF5, resumable.
+
+The work, for a map `<out>`:
+  1. preflight: the output's size and the time it will take, estimated from measured rates
+     (`RATES`); a file system without the room for it stops the build before it starts,
+     and a build of more than a day needs `yes=True` (`--yes`);
+  2. the Reach-Ability map, kept in `<out>.partial/reach.h5`;
+  3. the edges in chunks [a, b) of the sampling order: a chunk is drawn (on a helper thread,
+     ahead of time), solved and rolled out on the accelerators; a writer thread packs its
+     valid edges with their spatial-index entries (`bundle.EdgeChunk`), saves them to
+     `<out>.partial/edges-<a>-<b>.npz` (atomically) and appends them to the map being
+     written in the partial folder (states compressed on all cores: `mapfile.EdgeWriter`),
+     while the next chunk computes;
+  4. at the end the spatial index (sorted cell range by cell range, `INDEX_PAIRS` pairs at
+     a time, from the saved chunks), then the map is renamed to `<out>` and the partial
+     folder removed.
+Memory stays bounded whatever the number of edges: two chunks on the host at most, one
+index range at the end.  Disk: the partial chunks (uncompressed) and the map side by side.
+
+Resumable: killed at any point (kill -9 included), the same command starts again from what
+`<out>.partial` holds: saved chunks are kept (and read back into the map in their turn),
+missing ones computed; a build with other parameters refuses to touch it.  Ctrl-C leaves nothing at `<out>`.  The
+chunk size is not part of the result: edges are drawn from counter-based streams
+(`bundle.edge_uniforms`), so the same seed gives the same datasets for any chunking and any
+number of devices or processes.
+
+Several devices: every launch is split over all local devices (`sharding`); several hosts:
+`jax.distributed` (`sharding.init_distributed`), every process computes its share, process
+0 reads and writes the files and tells the others which chunks are left.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .batching import device_description
+from .bundle import (
+    BundleConfig,
+    EdgeChunk,
+    EdgeKernels,
+    chunk_ranges,
+    draw_edges,
+    pack_chunk,
+    reasons,
+    roll_out,
+    solve_starts,
+)
+from .errors import ConfigError, OutputPathError
+from .failure import Failure
+from .fileio import check_writable
+from .mapfile import PER_EDGE, EdgeWriter, load_map, write_head, write_index, write_reach_map
+from .progress import Progress
+from .reach import ReachConfig, ReachResult, reach_map
+from .robot import Robot
+
+INDEX_PAIRS = 32 * 2**20  # spatial-index pairs sorted at a time when assembling (256 MB)
+CHUNK_FILE = re.compile(r"^edges-(\d+)-(\d+)\.npz$")
+# Measured rates for the preflight (benchmarks/RESULTS.md): edges per second after
+# compilation, per accelerator or per CPU core, and what the files take per sampled edge
+# (case 2: a quarter of the sampled edges are kept, 51 states each).
+RATES = {"gpu": 60_000.0, "cpu_core": 170.0}
+COMPILE_SECONDS = {"gpu": 40.0, "cpu": 60.0}
+MAP_BYTES_PER_EDGE = 620.0  # the finished map
+PARTIAL_BYTES_PER_EDGE = 960.0  # the uncompressed chunks in <out>.partial
+DAY = 86_400.0
+
+
+@dataclass
+class Preflight:
+    edges: int
+    map_bytes: float
+    disk_bytes: float  # partial chunks + the map, at the end of the build
+    seconds: float
+    free_bytes: int
+    devices: int
+    basis: str
+
+    def lines(self) -> list[str]:
+        return [
+            f"preflight: {self.edges:,} edges -> a map of about {_size(self.map_bytes)} "
+            f"({_size(self.disk_bytes)} of disk while it is built; {_size(self.free_bytes)} free), "
+            f"about {_duration(self.seconds)} ({self.basis})"
+        ]
+
+
+def _size(b: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if b < 1000 or unit == "TB":
+            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
+        b /= 1000
+    return f"{b:.1f} TB"
+
+
+def _duration(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 2 * 3600:
+        return f"{s / 60:.0f} min"
+    if s < 2 * DAY:
+        return f"{s / 3600:.1f} h"
+    return f"{s / DAY:.1f} days"
+
+
+def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
+    """Estimated size and time of a build of n edges (before any work)."""
+    gpu = platform != "cpu"
+    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * (os.cpu_count() or 1)
+    seconds = n / rate + COMPILE_SECONDS["gpu" if gpu else "cpu"]
+    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {os.cpu_count()}"
+    basis = f"{rate:,.0f} edges/s, from rates measured on {where}"
+    parent = out.parent if str(out.parent) else Path(".")
+    return Preflight(
+        n,
+        n * MAP_BYTES_PER_EDGE,
+        n * (MAP_BYTES_PER_EDGE + PARTIAL_BYTES_PER_EDGE),
+        seconds,
+        shutil.disk_usage(parent).free,
+        devices,
+        basis,
+    )
+
+
+def partial_path(out: str | Path) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def _plan(robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: BundleConfig) -> dict:
+    """What a partial build holds (a resume must match it)."""
+    reach = {k: v for k, v in asdict(reach_cfg).items() if k not in ("strategy", "chunk", "traced_locks")}
+    return json.loads(
+        json.dumps(
+            {
+                "lmjx_version": __version__,
+                "robot_model_hash": robot.model_hash,
+                "failure": failure.spec,
+                "locked": [list(x) for x in failure.locked],
+                "reach": reach,
+                "edges": config.content(),
+                "n": config.n_edges(),
+            },
+            default=list,
+        )
+    )
+
+
+def saved_chunks(folder: Path) -> list[tuple[int, int]]:
+    """The chunk ranges saved in a partial folder, in order (temporary files removed)."""
+    ranges = []
+    for f in folder.iterdir():
+        m = CHUNK_FILE.match(f.name)
+        if m:
+            ranges.append((int(m.group(1)), int(m.group(2))))
+        elif f.name.startswith(".") and f.name.endswith(".tmp"):
+            f.unlink(missing_ok=True)  # a save a kill interrupted
+    return sorted(ranges)
+
+
+def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple[int, int]]:
+    """Ranges of [0, n) not covered by `done` (disjoint, sorted), cut into chunks of `size`."""
+    todo, at = [], 0
+    for a, b in done:
+        if a < at:
+            raise ConfigError(f"the partial build holds overlapping chunks ({a}-{b}); remove the .partial folder")
+        todo += chunk_ranges(a, size, at) if a > at else []
+        at = b
+    return todo + chunk_ranges(n, size, at)
+
+
+def _save(folder: Path, chunk: EdgeChunk) -> None:
+    path = folder / f"edges-{chunk.start}-{chunk.stop}.npz"
+    tmp = folder / f".{path.name}.{os.getpid()}.tmp"
+    meta = {"rolled_out": chunk.rolled_out, "states_evaluated": chunk.states_evaluated, "seconds": chunk.seconds}
+    with open(tmp, "wb") as fh:
+        np.savez(fh, meta=np.array(json.dumps(meta)), **{k: getattr(chunk, k) for k in EdgeChunk.ARRAYS})
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _load(folder: Path, a: int, b: int) -> EdgeChunk:
+    with np.load(folder / f"edges-{a}-{b}.npz") as z:
+        meta = json.loads(str(z["meta"]))
+        arrays = {k: z[k] for k in EdgeChunk.ARRAYS}
+    return EdgeChunk(start=a, stop=b, rolled_out=meta["rolled_out"], states_evaluated=meta["states_evaluated"],
+                     seconds=meta["seconds"], **arrays)  # fmt: skip
+
+
+def build_map(
+    out: str | Path,
+    failure: Failure,
+    reach_cfg: ReachConfig,
+    config: BundleConfig,
+    robot: Robot,
+    progress: bool = True,
+    sharded: bool = True,
+    yes: bool = False,
+    say=print,
+) -> dict:
+    """Build (or finish) the map file `out`: reach map + edge bundle, streamed.  Returns a
+    summary (for the command line)."""
+    import jax
+
+    from . import sharding
+
+    reach_cfg.validate(robot)
+    config.validate(robot)
+    out = Path(out)
+    folder = partial_path(out)
+    lead = jax.process_index() == 0
+    n = config.n_edges()
+    devices = sharding.device_count() if sharded else 1
+    if lead:
+        check_writable(out, "map file")
+        pre = preflight(n, out, devices, jax.default_backend())
+        for line in pre.lines():
+            say(line)
+        done_bytes = sum(f.stat().st_size for f in folder.iterdir()) if folder.is_dir() else 0
+        if pre.disk_bytes - done_bytes > pre.free_bytes:
+            raise OutputPathError(
+                f"not enough room at {out.parent or '.'}: the build needs about {_size(pre.disk_bytes)}, "
+                f"{_size(pre.free_bytes)} are free; free some or choose another --out"
+            )
+        if pre.seconds > DAY and not yes:
+            raise ConfigError(
+                f"{n:,} edges would take about {_duration(pre.seconds)} here; add --yes to start anyway "
+                "(it can be stopped and resumed), or ask for fewer --edges"
+            )
+    plan = _plan(robot, failure, reach_cfg, config)
+    reach: ReachResult | None = None
+    if lead:
+        folder.mkdir(parents=True, exist_ok=True)
+        plan_path = folder / "plan.json"
+        if plan_path.exists():
+            if json.loads(plan_path.read_text()) != plan:
+                raise ConfigError(
+                    f"{folder} holds an unfinished build with other parameters; rerun that command, or remove "
+                    "the folder to start this one"
+                )
+        else:
+            tmp = plan_path.with_name(".plan.json.tmp")
+            tmp.write_text(json.dumps(plan, indent=1, sort_keys=True))
+            os.replace(tmp, plan_path)
+        if (folder / "reach.h5").exists():
+            reach = load_map(folder / "reach.h5", robot).reach
+    size = config.edges_per_chunk(devices)
+    done = saved_chunks(folder) if lead else []
+    todo = missing_ranges(done, n, size) if lead else []
+    if jax.process_count() > 1:  # everyone follows process 0's record of what is left
+        from jax.experimental import multihost_utils
+
+        count = int(multihost_utils.broadcast_one_to_all(np.int64(len(todo))))
+        arr = np.zeros((count, 2), np.int64) if not lead else np.asarray(todo, np.int64).reshape(-1, 2)
+        todo = [tuple(int(x) for x in r) for r in np.asarray(multihost_utils.broadcast_one_to_all(arr))]
+        has_reach = bool(multihost_utils.broadcast_one_to_all(np.int32(reach is not None)))
+    else:
+        has_reach = reach is not None
+    device = device_description()
+    t0 = time.perf_counter()
+    if reach is None:
+        # every process computes the reach map (the edges are drawn from it)
+        reach = reach_map(failure, reach_cfg, robot=robot, progress=progress and lead)
+        if lead and not has_reach:
+            write_reach_map(folder / "reach.h5", reach, robot)
+    t_reach = time.perf_counter() - t0
+    kernels = EdgeKernels(robot, failure, config, n, sharded, reach_cfg.object_height / 2)
+    bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
+    bar.update(2 * sum(b - a for a, b in done))
+    t1 = time.perf_counter()
+    writer = _MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
+    with ThreadPoolExecutor(1) as drawer:
+        ahead: Future | None = drawer.submit(draw_edges, reach, config, robot, *todo[0]) if todo else None
+        for k, (a, b) in enumerate(todo):
+            assert ahead is not None
+            draws = ahead.result()
+            # the next chunk's draws (host work) while this one's starts and rollouts run
+            ahead = drawer.submit(draw_edges, reach, config, robot, *todo[k + 1]) if k + 1 < len(todo) else None
+            samples = solve_starts(draws, kernels, bar)
+            idx, rolled = roll_out(samples, kernels, bar)
+            bar.update(b - a - len(idx))
+            if writer is not None:
+                writer.put(samples, idx, rolled)
+    edge_seconds = time.perf_counter() - t1 - kernels.compile_seconds
+    summary = {"device": device, "devices": devices, "processes": jax.process_count()}
+    if writer is not None:
+        summary |= writer.finish(out, kernels, edge_seconds, device)
+        summary["reach_seconds"] = t_reach
+    bar.close()
+    return summary
+
+
+class _MapWriter:
+    """Process 0's second thread: packs each computed chunk, saves it to the partial folder
+    (atomically), and appends it, in edge order, to the map being written there (saved
+    chunks of an earlier run are read back in their turn).  At the end: the spatial index,
+    then the map renamed to `out` and the partial folder removed."""
+
+    def __init__(
+        self,
+        folder: Path,
+        reach: ReachResult,
+        config: BundleConfig,
+        robot: Robot,
+        n: int,
+        done: list[tuple[int, int]],
+        todo: list[tuple[int, int]],
+    ) -> None:
+        import queue
+        import threading
+
+        self.folder, self.reach, self.config, self.robot, self.n = folder, reach, config, robot, n
+        self.ranges = sorted(done + todo)
+        self.saved = set(done)
+        self.queue: queue.Queue = queue.Queue(maxsize=1)  # one computed chunk waits at most
+        self.error: BaseException | None = None
+        self.tmp = folder / "map.h5.tmp"
+        self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
+        self.totals = {"counts": np.zeros(reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()), np.int64),
+                       "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
+        self.t_write = 0.0
+        self.thread = threading.Thread(target=self._run, name="lmjx-map-writer", daemon=True)
+        self.thread.start()
+
+    def put(self, samples, idx, rolled) -> None:
+        import queue
+
+        while self.thread.is_alive():
+            try:
+                self.queue.put((samples, idx, rolled), timeout=0.5)
+                return
+            except queue.Full:
+                continue
+        raise self.error or RuntimeError("the map writer stopped")
+
+    def _run(self) -> None:
+        try:
+            self.file = h5py.File(self.tmp, "w", track_order=True)
+            write_head(self.file, self.robot, self.reach, with_edges=True)
+            self.w = EdgeWriter(self.file, self.config, self.reach, self.robot.nq)
+            for a, b in self.ranges:
+                if (a, b) in self.saved:
+                    chunk = _load(self.folder, a, b)
+                else:
+                    samples, idx, rolled = self.queue.get()
+                    chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
+                    _save(self.folder, chunk)
+                t0 = time.perf_counter()
+                self._append(chunk)
+                self.t_write += time.perf_counter() - t0
+        except BaseException as e:  # handed to the main thread
+            self.error = e
+
+    def _append(self, c: EdgeChunk) -> None:
+        t = self.totals
+        t["first_edge"].append(self.w.n_edges)
+        self.w.add_states(c.q, c.qd, c.p)
+        starts = np.concatenate([[0], np.cumsum(c.length)[:-1]]).astype(np.int64)
+        q_start = c.q[starts] if len(c.length) else np.zeros((0, self.robot.nq), np.float32)
+        self.w.add_edges({name: q_start if name == "q_start" else getattr(c, name) for name in PER_EDGE})
+        t["counts"] += np.bincount(c.index_cell, minlength=len(t["counts"]))
+        t["rejected"] += c.rejected
+        t["rolled_out"] += c.rolled_out
+        t["evaluated"] += c.states_evaluated
+        t["states"] += len(c.q)
+
+    def finish(self, out: Path, kernels: EdgeKernels, edge_seconds: float, device: str) -> dict:
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
+        t0 = time.perf_counter()
+        t = self.totals
+        offset = np.zeros(len(t["counts"]) + 1, np.int64)
+        offset[1:] = np.cumsum(t["counts"])
+        ds = write_index(self.w.group, self.reach, offset, None)
+        _write_index_edges(ds, self.folder, self.ranges, t["first_edge"], offset)
+        rejected = {r: int(k) for r, k in zip(reasons(), t["rejected"], strict=True)}
+        steps = t["rolled_out"] * self.config.steps
+        sizes = self.w.close(
+            {
+                "edges_sampled": self.n,
+                "rejected": rejected,
+                "seconds": edge_seconds,
+                "compile_seconds": kernels.compile_seconds,
+                "rollout_seconds": kernels.rollout.kernel_seconds,
+                "edge_steps": steps,
+                "states_evaluated": t["evaluated"],
+                "device": device,
+            }
+        )
+        valid = self.w.n_edges
+        self.file.close()
+        os.replace(self.tmp, out)
+        shutil.rmtree(self.folder, ignore_errors=True)
+        return {
+            "edges_sampled": self.n,
+            "edges_valid": valid,
+            "states": t["states"],
+            "rejected": rejected,
+            "edge_steps": steps,
+            "states_evaluated": t["evaluated"],
+            "seconds": round(edge_seconds, 4),
+            "rollout_seconds": round(kernels.rollout.kernel_seconds, 4),
+            "compile_seconds": round(kernels.compile_seconds, 4),
+            "write_seconds": round(self.t_write, 4),
+            "finish_seconds": round(time.perf_counter() - t0, 4),
+            "edge_steps_per_s": round(steps / max(kernels.rollout.kernel_seconds, 1e-9), 1),
+            **sizes,
+        }
+
+
+def _write_index_edges(
+    ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+) -> None:
+    """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
+    range at most INDEX_PAIRS pairs, read from every saved chunk)."""
+    n_cells = len(offset) - 1
+    c0 = 0
+    while c0 < n_cells:
+        c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
+        c1 = min(c1, n_cells)
+        cells, edges = [], []
+        for (a, b), e0 in zip(ranges, first_edge, strict=True):
+            with np.load(folder / f"edges-{a}-{b}.npz") as z:
+                cell, edge = z["index_cell"], z["index_edge"]
+            sel = (cell >= c0) & (cell < c1)
+            cells.append(cell[sel])
+            edges.append(edge[sel].astype(np.int64) + e0)
+        cell = np.concatenate(cells)
+        edge = np.concatenate(edges)
+        order = np.argsort(cell, kind="stable")  # chunks come in edge order, each sorted by (cell, edge)
+        if len(order):
+            ds[offset[c0] : offset[c1]] = edge[order].astype(np.int32)
+        c0 = c1
