@@ -2,8 +2,9 @@
 # One device-machine session: install the carried wheels, check the kernels on the GPU
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
-# (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu, with warp-lang
-# installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
+# (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
+# warm100k edges5m shard5m decision uratlas; planner, gputests, evalgpu and decision need
+# warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
 # from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl); 'maps'
@@ -100,6 +101,36 @@ for step in $steps; do
           --json 2> /dev/null | tr -d '\n '; echo
       done
       python3 -c "from lmjx.atlas import same_content as s; print('K=5 1 vs all GPUs differences:', s('$WORK/atlas5--no-shard.h5', '$WORK/atlas5.h5'))" ;;
+    warm100k)
+      # Issue 9 "compile once": build-map case2 (100,000 edges) with an empty cache, then again.
+      rm -rf ~/.cache/lmjx/jax ~/.cache/lmjx/export
+      for run in cold warm; do
+        /usr/bin/time -f "build-map case2 100k ($run cache): %e s wall" timeout 300 python3 -m lmjx.cli build-map \
+          --failure case2 --out "$WORK/maps/case2.h5" --json > "$OUT/build100k_$run.json" 2> "$WORK/build.err"
+        tail -1 "$WORK/build.err"
+      done ;;
+    edges5m)
+      # Issue 10: 5,000,000 edges on one GPU, compilation included; peak host memory.
+      /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 --no-shard \
+        --out "$WORK/maps/case2_5M.h5" --json > "$OUT/build5m_1gpu.json" 2> "$WORK/build5m.err"
+      grep -E "preflight|Elapsed|Maximum resident" "$WORK/build5m.err"; cat "$OUT/build5m_1gpu.json" ;;
+    shard5m)
+      # The same on every local GPU: the same datasets, and the speed-up after compilation.
+      /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 \
+        --out "$WORK/case2_5M_all.h5" --json > "$OUT/build5m_all.json" 2> "$WORK/build5m_all.err"
+      grep -E "Elapsed|Maximum resident" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
+      timeout 200 python3 benchmarks/same_map.py "$WORK/maps/case2_5M.h5" "$WORK/case2_5M_all.h5" ;;
+    decision)
+      # Issue 10: one Greedy decision (GPU simulator, 1,024 candidates) on the 100k and the 5M map.
+      for m in case2 case2_5M; do
+        timeout 280 python3 -m lmjx.cli bench --sections planner --candidates 1024 --repeats 3 \
+          --planner-map "$WORK/maps/$m.h5" --out "$OUT/decision_$m.json" 2>&1 | grep -iE "decision|map|error" | head -5
+      done ;;
+    uratlas)
+      # Issue 11: the UR5e atlas (675 maps, K = 3), compilation included (no cache).
+      /usr/bin/time -f "UR5e atlas: %e s wall" timeout 300 python3 -m lmjx.cli --cache-dir off atlas --robot ur5e \
+        --out "$WORK/atlas_ur5e.h5" --summary "$OUT/atlas_ur5e.md" --json > "$OUT/atlas_ur5e.json" 2> "$WORK/uratlas.err"
+      tail -2 "$WORK/uratlas.err"; cat "$OUT/atlas_ur5e.json"; cp "$WORK/atlas_ur5e.h5" "$OUT/" ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;

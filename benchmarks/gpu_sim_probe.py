@@ -108,41 +108,42 @@ def main() -> None:
     from lmjx.scene import build_scene
 
     fused_scene = build_scene(robot, sc, fuse_static=True)
-    def profile() -> None:
-            from mujoco.mjx.third_party import mujoco_warp as mjw
 
-            sim = sims[args.all_sizes]
-            for n in [int(s) for s in args.profile.split(",")]:
-                sim.simulate(q0, objects, acts[:n])  # leaves the batch mid-scene, objects in contact
-                b = sim._batches[sim.bucket(n)]
-                per = defaultdict(float)
-                count = defaultdict(int)
-                steps = 5
-                with wp.ScopedDevice(dev):
-                    wp.synchronize()
-                    t0 = time.perf_counter()
-                    with wp.ScopedTimer("steps", print=False, cuda_filter=wp.TIMING_KERNEL, synchronize=True) as t:
-                        for _ in range(steps):
-                            mjw.step(sim.m, b.d)
-                    wall = time.perf_counter() - t0
-                for r in t.timing_results:
-                    per[r.name] += r.elapsed / steps
-                    count[r.name] += 1
-                total = sum(per.values())
-                top = sorted(per.items(), key=lambda kv: -kv[1])[:30]
-                prof = {
-                    "n": n,
-                    "kernels_per_step": sum(count.values()) / steps,
-                    "kernel_ms_per_step": total,
-                    "wall_ms_per_step_ungraphed": wall / steps * 1000,
-                    "top": [(k, round(v, 4), count[k] // steps) for k, v in top],
-                }
-                report.setdefault("profile", []).append(prof)
-                save()
-                print(f"profile n={n}: {prof['kernels_per_step']:.0f} kernels/step, {total:.3f} ms kernel time/step, "
+    def profile() -> None:
+        from mujoco.mjx.third_party import mujoco_warp as mjw
+
+        sim = sims[args.all_sizes]
+        for n in [int(s) for s in args.profile.split(",")]:
+            sim.simulate(q0, objects, acts[:n])  # leaves the batch mid-scene, objects in contact
+            b = sim._batches[sim.bucket(n)]
+            per = defaultdict(float)
+            count = defaultdict(int)
+            steps = 5
+            with wp.ScopedDevice(dev):
+                wp.synchronize()
+                t0 = time.perf_counter()
+                with wp.ScopedTimer("steps", print=False, cuda_filter=wp.TIMING_KERNEL, synchronize=True) as t:
+                    for _ in range(steps):
+                        mjw.step(sim.m, b.d)
+                wall = time.perf_counter() - t0
+            for r in t.timing_results:
+                per[r.name] += r.elapsed / steps
+                count[r.name] += 1
+            total = sum(per.values())
+            top = sorted(per.items(), key=lambda kv: -kv[1])[:30]
+            prof = {
+                "n": n,
+                "kernels_per_step": sum(count.values()) / steps,
+                "kernel_ms_per_step": total,
+                "wall_ms_per_step_ungraphed": wall / steps * 1000,
+                "top": [(k, round(v, 4), count[k] // steps) for k, v in top],
+            }
+            report.setdefault("profile", []).append(prof)
+            save()
+            print(f"profile n={n}: {prof['kernels_per_step']:.0f} kernels/step, {total:.3f} ms kernel time/step, "
                       f"{prof['wall_ms_per_step_ungraphed']:.3f} ms wall/step without graphs")  # fmt: skip
-                for k, v, c in prof["top"]:
-                    print(f"    {v:8.4f} ms  x{c:<3d} {k}")
+            for k, v, c in prof["top"]:
+                print(f"    {v:8.4f} ms  x{c:<3d} {k}")
 
     sims = {}
     for name in [v for v in args.variants.split(",") if v]:

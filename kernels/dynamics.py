@@ -40,7 +40,7 @@ def rnea(
 ) -> list[Scalar]:
     """Joint torques (nj scalars) that produce accelerations `qdd` at state (q, qd).
 
-    Joints must rotate about their body's origin (MJCF joint pos 0), as all of the Panda's do.
+    Joints must rotate about their body's origin (MJCF joint pos 0): docs/ROBOTS.md asks it of every robot.
     `poses` (from `body_poses(tree, q)`) may be passed in to share the forward kinematics.
     """
     if np.any(tree.anchor != 0):

@@ -1,11 +1,12 @@
 """lmjx: keep a robot arm with locked joints useful, with whole-body non-prehensile actions.
 
 Public API (everything else is internal):
-  load_robot()                      the Panda model and its static kernel description
-  parse_failure(spec, robot)        'none', 'case1', 'case2' or 'J2=0.3,J4=-1.5'
+  load_robot(name_or_path)          a robot ('panda', the default; 'ur5e'; or an MJCF's path)
+  robots(), check_robot(path)       the shipped robots; what an MJCF lacks (docs/ROBOTS.md)
+  parse_failure(spec, robot)        'none', one of the robot's presets or 'J2=0.3,J4=-1.5'
   ReachConfig, reach_map(failure)   the Reach-Ability map (paper Algorithm 1)
   write_reach_map(path, result)     write a map file (schema: maps/README.md)
-  load_map(path)                    read and validate a map file
+  load_map(path)                    read and validate a map file (its robot from the file)
   LmjxError                         base class of errors caused by user input
 
 Names are imported on first use, so that `import lmjx` (and `lmjx --help`) stays light.
@@ -29,6 +30,8 @@ _EXPORTS = {
     "write_reach_map": "mapfile",
     "Robot": "robot",
     "load_robot": "robot",
+    "robots": "robot",
+    "check_robot": "robot",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

@@ -27,8 +27,8 @@ class Action:
     """A planned action: joint targets q* and velocities qd* at the control rate."""
 
     edge: int  # edge id in the bundle
-    q: np.ndarray  # (T, 7)
-    qd: np.ndarray  # (T, 7)
+    q: np.ndarray  # (T, nq)
+    qd: np.ndarray  # (T, nq)
     transit_steps: int  # the first transit_steps rows move to the edge's start
     via_park: bool
 
@@ -84,7 +84,7 @@ class TransitPlanner:
         return n, fine
 
     def segment(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray | None:
-        """Joint targets (T, 7) from q0 (exclusive) to q1 (inclusive), or None if they collide."""
+        """Joint targets (T, nq) from q0 (exclusive) to q1 (inclusive), or None if they collide."""
         return self.segments(q0[None], q1[None])[0]
 
     def segments(self, q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray | None]:
@@ -204,8 +204,9 @@ def _clearance_kernel(robot: Robot):
 def park_pose(robot: Robot, failure: Failure, samples: int = 3000) -> np.ndarray:
     """A collision-free configuration with the arm raised clear of the table, for transits.
 
-    Franka's ready pose with the locked joints at their angles, if collision-free; else, of
-    `samples` seeded random collision-free configurations, the one whose hand is highest.
+    The robot's ready pose (`lmjx_ready`) with the locked joints at their angles, if
+    collision-free; else, of `samples` seeded random collision-free configurations, the one
+    whose tool (the body of the `tcp` site) is highest.
     """
     m = robot.mj
     d = mujoco.MjData(m)
@@ -223,7 +224,7 @@ def park_pose(robot: Robot, failure: Failure, samples: int = 3000) -> np.ndarray
         return q
     rng = np.random.default_rng(0)
     free = list(failure.free(robot.nq))
-    hand = m.body("hand").id
+    hand = int(m.site_bodyid[robot.tcp_site])
     best, best_z = None, -np.inf
     for _ in range(samples):
         x = q.copy()
@@ -253,17 +254,18 @@ def control_points(actions: list[Action]) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def controls(action: Action, physics_dt: float, settle: float) -> np.ndarray:
-    """Servo controls (steps, 14) at the physics rate: q* interpolated linearly between
+    """Servo controls (steps, 2 nj) at the physics rate: q* interpolated linearly between
     control points, qd* held; then `settle` seconds holding the final pose."""
     sub = round(CONTROL_DT / physics_dt)
     q = np.concatenate([action.q[:1] - action.qd[:1] * CONTROL_DT, action.q])  # the point before the first
     frac = (np.arange(1, sub + 1) / sub)[None, :, None]
-    q_phys = (q[:-1, None, :] * (1 - frac) + q[1:, None, :] * frac).reshape(-1, 7)
+    nj = q.shape[1]
+    q_phys = (q[:-1, None, :] * (1 - frac) + q[1:, None, :] * frac).reshape(-1, nj)
     qd_phys = np.repeat(action.qd, sub, axis=0)
     hold = round(settle / physics_dt)
     q_hold = np.repeat(action.q[-1:], hold, axis=0)
-    out = np.zeros((len(q_phys) + hold, 14))
-    out[: len(q_phys), :7] = q_phys
-    out[: len(q_phys), 7:] = qd_phys
-    out[len(q_phys) :, :7] = q_hold
+    out = np.zeros((len(q_phys) + hold, 2 * nj))
+    out[: len(q_phys), :nj] = q_phys
+    out[: len(q_phys), nj:] = qd_phys
+    out[len(q_phys) :, :nj] = q_hold
     return out

@@ -50,7 +50,7 @@ def decision_states(
         assert mf.edges is not None and mf.reach is not None
         tp = TransitPlanner(robot, mf.failure, batched=True)
         for s in scenarios:
-            sc = scenario(s)
+            sc = scenario(s, robot.profile.task_scale)
             for seed in range(seeds):
                 rng = np.random.default_rng(seed)
                 world = SimulatedRealWorld(robot, 10_000 + seed)
@@ -77,7 +77,7 @@ def measure(
     for s in sorted({d.scenario for d in decisions}):
         group = [d for d in decisions if d.scenario == s]
         sim, ref = tested[s], reference[s]
-        sc = scenario(s)
+        sc = scenario(s, robot.profile.task_scale)
         field = GoalField(sc, *table_bounds(robot))
         requests = [(d.observation.robot_q, d.observation.objects, d.actions) for d in group]
         t0 = time.perf_counter()

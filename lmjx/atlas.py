@@ -1,17 +1,18 @@
 """The failure atlas: the Reach-Ability map's PM and NPM+PM areas for every set of 2 and 3
-locked joints of the Panda, at K lock angles per locked joint.
+locked joints of a robot (the Panda by default), at K lock angles per locked joint.
 
 Every map is computed as `lmjx.reach` computes one (same grid, attempts, restarts, interaction
 points, acceptance checks and smoothing; strategy "rounds": attempt by attempt, only the cells
 still unlabelled go on), but by one program for every failure: all seven joints are solved
-for and a 0/1 mask says which are locked (`kernels.ik.ik_solve(free_mask=...)`), so cells of
+for (as many as the robot has) and a 0/1 mask says which are locked (`kernels.ik.ik_solve(free_mask=...)`), so cells of
 many maps share every launch; an item (map, cell, attempt) draws its own perturbation and
 restarts on the device (`kernels.atlas_cell`); and the batch axis is split over every device
 of every process (`lmjx.sharding`).
 
 Lock angles: the range of joint j is cut into K equal bins and one angle is drawn uniformly in
 each (seeded), the same K angles for joint j in every subset.  A subset of s joints gets the
-K^s combinations: 21 x 9 + 35 x 27 = 1,134 maps at K = 3.
+K^s combinations: for the Panda's 7 joints 21 x 9 + 35 x 27 = 1,134 maps at K = 3, for the
+UR5e's 6 joints 15 x 9 + 20 x 27 = 675.
 
 Randomness: every (map, attempt, cell) draws its target perturbation and restart angles from
 a counter-based key (seed, map number, attempt, cell), so a map's labels do not depend on
@@ -74,7 +75,7 @@ class AtlasConfig:
 
 
 def lock_angles(robot: Robot, k: int, seed: int) -> np.ndarray:
-    """(7, K) lock angles: one uniform draw in each of K equal bins of each joint's range."""
+    """(nq, K) lock angles: one uniform draw in each of K equal bins of each joint's range."""
     rng = np.random.default_rng([seed, 7919])
     u = rng.random((robot.nq, k))
     lo, hi = robot.lower[:, None], robot.upper[:, None]
@@ -107,6 +108,7 @@ class AtlasState:
     labels_smooth: np.ndarray  # (N, ny, nx) int8
     done: np.ndarray  # (N,) bool
     robot_hash: str
+    robot: str = "panda"  # the robot's name (a shipped robot's, or a user MJCF's model name)
     run: dict = field(default_factory=dict)  # how it was computed (device, times): not content
 
     @property
@@ -132,8 +134,14 @@ def empty_state(robot: Robot, config: AtlasConfig) -> AtlasState:
     shape = (n, len(ys), len(xs))
     return AtlasState(
         config, joints, angles, xs, ys, np.full(shape, -1, np.int8), np.full(shape, -1, np.int8),
-        np.zeros(n, bool), robot.model_hash,
+        np.zeros(n, bool), robot.model_hash, _robot_name(robot),
     )  # fmt: skip
+
+
+def _robot_name(robot: Robot) -> str:
+    from .robot import ROBOTS
+
+    return robot.key if robot.key in ROBOTS else robot.name
 
 
 def write_atlas(path: str | Path, st: AtlasState) -> None:
@@ -143,6 +151,7 @@ def write_atlas(path: str | Path, st: AtlasState) -> None:
         f.attrs["version"] = VERSION
         f.attrs["params"] = json.dumps(st.config.params(), sort_keys=True)
         f.attrs["robot_hash"] = st.robot_hash
+        f.attrs["robot"] = st.robot
         f.attrs["complete"] = bool(st.done.all())
         f.attrs["cell_m"] = st.config.reach.cell
         f["xs"], f["ys"] = st.xs, st.ys
@@ -173,9 +182,13 @@ def read_atlas(path: str | Path, robot: Robot | None = None) -> AtlasState:
         params = json.loads(f.attrs["params"])
         reach = ReachConfig(**{**params["reach"], **_tuples(params["reach"])})
         config = AtlasConfig(tuple(params["sizes"]), params["angles"], params["seed"], reach=reach)
+        name = str(f.attrs.get("robot", "panda"))
+        if robot is not None and name != _robot_name(robot):
+            raise ConfigError(f"{p} is an atlas of the robot '{name}', not '{_robot_name(robot)}'")
         return AtlasState(
             config, f["locked_joints"][...], f["lock_angles"][...], f["xs"][...], f["ys"][...], f["labels"][...],
-            f["labels_smooth"][...], f["done"][...], str(f.attrs["robot_hash"]), json.loads(f["run"].attrs["json"]),
+            f["labels_smooth"][...], f["done"][...], str(f.attrs["robot_hash"]), name,
+            json.loads(f["run"].attrs["json"]),
         )  # fmt: skip
 
 
@@ -327,7 +340,7 @@ def same_content(a: str | Path, b: str | Path) -> list[str]:
     """What differs between two atlas files, run records (device, times) aside: [] if nothing."""
     diffs = []
     with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
-        for k in ("schema", "version", "params", "robot_hash", "complete", "cell_m"):
+        for k in ("schema", "version", "params", "robot_hash", "robot", "complete", "cell_m"):
             if fa.attrs.get(k) != fb.attrs.get(k):
                 diffs.append(f"attribute {k}")
         for name in sorted((set(fa) | set(fb)) - {"run"}):
@@ -366,5 +379,6 @@ def plane_area(st: AtlasState) -> float:
     return len(st.xs) * len(st.ys) * st.config.reach.cell**2
 
 
-def expected_maps(sizes: tuple[int, ...], k: int, nq: int = 7) -> int:
+def expected_maps(sizes: tuple[int, ...], k: int, nq: int) -> int:
+    """How many maps an atlas of `sizes` locked joints at K = k angles has for an nq-joint arm."""
     return sum(math.comb(nq, s) * k**s for s in sizes)

@@ -5,7 +5,8 @@ Figures (all on the same task-plane targets, PM mode: TCP at grasp height, tool 
     compile time apart, median of repeats;
   * pytorch_kinematics PseudoInverseIK on the same device, same batch and iteration count;
   * a serial PyBullet calculateInverseKinematics loop on PyBullet's own Panda (CPU);
-  * whole Reach-Ability maps (after compilation) for none, case1 and case2.
+  * whole Reach-Ability maps (after compilation) for none and the robot's presets (the
+    Panda's case1 and case2).
 Speed is measured here, never asserted in unit tests.
 """
 
@@ -27,7 +28,7 @@ from .errors import ConfigError, LmjxError
 from .failure import parse_failure
 from .fileio import check_writable, write_text_atomic
 from .ik_batch import IKBatch, backend, default_ik_settings, device_description
-from .reach import ReachConfig, reach_map
+from .reach import ReachConfig, reach_config, reach_map
 from .robot import Robot, load_robot
 
 
@@ -57,7 +58,7 @@ def bench_lmjx_ik(robot: Robot, sizes: list[int], iterations: int, repeats: int)
     from .kernels.ik import ik_solve
 
     failure = parse_failure("none", robot)
-    cfg = ReachConfig()
+    cfg = reach_config(robot)
     settings = default_ik_settings(iterations=iterations)
     free = failure.free()
     q_fixed = failure.q_fixed()
@@ -66,7 +67,7 @@ def bench_lmjx_ik(robot: Robot, sizes: list[int], iterations: int, repeats: int)
     for b in sizes:
         rng = np.random.default_rng(1)
         tgt = plane_targets(b, cfg)
-        q0 = (robot.lower + rng.random((b, 7)) * (robot.upper - robot.lower)).astype(np.float32)
+        q0 = (robot.lower + rng.random((b, robot.nq)) * (robot.upper - robot.lower)).astype(np.float32)
         args = (jnp.asarray(tgt, jnp.float32), jnp.zeros(b, jnp.int32), jnp.ones(b, bool), jnp.asarray(q0))
 
         solve = jax.jit(jax.vmap(lambda t, s, pm, q: ik_solve(robot.arm, settings, free, q_fixed, sites, t, s, pm, q)))
@@ -107,10 +108,10 @@ def bench_pk(robot: Robot, b: int, iterations: int, repeats: int) -> dict:
     device = "cuda" if backend() == "gpu" and torch.cuda.is_available() else "cpu"
     chain = pk_chain(robot, device=device, dtype="float32")
     limits = torch.tensor(np.stack([robot.lower, robot.upper], axis=1), dtype=torch.float32, device=device)
-    tgt = plane_targets(b, ReachConfig())
+    tgt = plane_targets(b, reach_config(robot))
     rng = np.random.default_rng(1)
     q0 = torch.tensor(
-        robot.lower + rng.random((1, 7)) * (robot.upper - robot.lower), dtype=torch.float32, device=device
+        robot.lower + rng.random((1, robot.nq)) * (robot.upper - robot.lower), dtype=torch.float32, device=device
     )
     rot = torch.tensor([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]], device=device).expand(b, 3, 3)
     goal = pk.Transform3d(pos=torch.tensor(tgt[:, :3], dtype=torch.float32, device=device), rot=rot, device=device)
@@ -151,8 +152,10 @@ def bench_pk(robot: Robot, b: int, iterations: int, repeats: int) -> dict:
 
 def bench_pybullet(robot: Robot, n: int, iterations: tuple[int, ...]) -> dict:
     """PyBullet's IK loop at several iteration caps; the fastest is kept for the ratio."""
+    if robot.key != "panda":
+        raise BaselineMissingError(f"PyBullet ships a model of the Panda only, not of {robot.key}")
     panda = pybullet_panda()
-    tgt = plane_targets(n, ReachConfig())[:, :3]
+    tgt = plane_targets(n, reach_config(robot))[:, :3]
     rng = np.random.default_rng(1)
     q0 = panda.lower + rng.random((n, len(panda.joints))) * (panda.upper - panda.lower)
     runs = []
@@ -196,8 +199,9 @@ def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int)
     from .bundle import BundleConfig, EdgeKernels, roll_out, sample_edges
     from .rollout_ref import ReferenceRollout
 
-    reach = reach_map("case2", ReachConfig(), robot=robot)
-    config = BundleConfig(edges=edges, seed=1, build_chunk=edges)
+    failure = bench_failure(robot)
+    reach = reach_map(failure, reach_config(robot), robot=robot)
+    config = BundleConfig(edges=edges, seed=1, build_chunk=edges, interaction_points=robot.default_ips)
     kernels = EdgeKernels(robot, reach.failure, config, edges)
     samples = sample_edges(reach, config, robot, 0, edges, kernels)
     idx, out = roll_out(samples, kernels)  # compiles, then one run
@@ -222,7 +226,7 @@ def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int)
         ref_states += len(r.q)
     t_ref = time.perf_counter() - t0
     return {
-        "failure": "case2",
+        "failure": failure,
         "edges_rolled_out": len(idx),
         "max_steps": config.steps,
         "valid": int(out["valid"].sum()),
@@ -244,12 +248,22 @@ def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int)
     }
 
 
+def _robot_flag(robot: Robot) -> str:
+    return "" if robot.key == "panda" else f" --robot {robot.key}"
+
+
+def bench_failure(robot: Robot) -> str:
+    """The failure the rollout and planner sections use: case2 where the robot has it."""
+    presets = list(robot.profile.presets)
+    return "case2" if "case2" in presets else (presets[-1] if presets else "none")
+
+
 def _fmt_rate(x: float) -> str:
     return f"{x / 1e6:.2f} M/s" if x >= 1e5 else f"{x / 1e3:.1f} k/s"
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    robot = load_robot()
+    robot = load_robot(args.robot)
     on_gpu = backend() == "gpu"
     if args.out:
         check_writable(args.out, "benchmark results")
@@ -264,7 +278,7 @@ def run_bench(args: argparse.Namespace) -> int:
         sizes = [2048]
     else:
         sizes = [1 << 16, 1 << 20, 1 << 21] if on_gpu else [4096, 16384]
-    iterations = ReachConfig().iterations
+    iterations = reach_config(robot).iterations
     sections = parse_sections(args.sections)
     report: dict = {
         "date": dt.date.today().isoformat(),
@@ -292,8 +306,8 @@ def run_bench(args: argparse.Namespace) -> int:
             ref = same[0]["solve_check_per_s"] if same else best
             ratios["lmjx_vs_pytorch_kinematics_same_batch"] = ref / report["pytorch_kinematics"]["solve_per_s"]
     if "maps" in sections:
-        map_cfg = ReachConfig(cell=0.05) if args.quick else ReachConfig()
-        report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", "case1", "case2"], map_cfg)
+        map_cfg = reach_config(robot, cell=0.05) if args.quick else reach_config(robot)
+        report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", *robot.profile.presets], map_cfg)
     if "rollouts" in sections:
         n_edges = 500 if args.quick else (100_000 if on_gpu else 5_000)
         report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats)
@@ -313,11 +327,13 @@ def run_bench(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--candidates must be positive, got '{args.candidates}'")
         else:
             counts = [8] if args.quick else ([256, 1024, 4096] if sim_name == "gpu" else [256])
-        if Path(args.planner_map).exists():
-            report["planner"] = bench_planner(robot, args.planner_map, counts, args.repeats, sim_name)
+        planner_map = args.planner_map or f"{robot.maps_dir}/{bench_failure(robot)}.h5"
+        if Path(planner_map).exists():
+            report["planner"] = bench_planner(robot, planner_map, counts, args.repeats, sim_name)
             report["planner"]["simulator_reason"] = why
         else:
-            report["planner"] = {"skipped": f"no map at {args.planner_map} (make run builds maps/case2.h5)"}
+            build = f"lmjx build-map{_robot_flag(robot)} --failure {bench_failure(robot)}"
+            report["planner"] = {"skipped": f"no map at {planner_map} (build it with: {build})"}
         for r in report["planner"].get("rows", []):
             if r["simulator"] == "gpu":
                 ratios[f"gpu_greedy_scoring_{r['candidates']}_vs_c_mujoco_all_cores"] = r["speedup_vs_cpu"]
@@ -381,9 +397,9 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     sim_name, why = resolve_simulator(args.sim)
     if sim_name == "cpu":
         return {"skipped": f"the simulator under test would be the reference itself ({why}); use --sim gpu or cpu-near"}
-    failures = ("case1", "case2")
+    failures = tuple(robot.profile.presets) or ("none",)
     try:
-        maps = load_maps(robot, failures, Path(args.maps))
+        maps = load_maps(robot, failures, Path(args.maps or robot.maps_dir))
     except LmjxError as e:
         return {"skipped": str(e)}
     scenarios = (1, 2, 3)
@@ -392,7 +408,7 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     tested = {s: make_simulator(robot, s, sim_name) for s in scenarios}
     reference = {s: make_simulator(robot, s, "cpu") for s in scenarios}
     out = measure(robot, decisions, tested, reference)
-    out |= {"simulator": sim_name, "maps": args.maps, "seeds": seeds, "depth": 3}
+    out |= {"simulator": sim_name, "maps": args.maps or robot.maps_dir, "seeds": seeds, "depth": 3}
     if sim_name == "gpu":
         # the same decisions on two GPU simulators batching them differently: how far float32
         # rounding (and the order atomics leave contacts in) carries through the scenes' contacts

@@ -38,10 +38,10 @@ def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int,
     """Up to n Greedy candidates from the park pose for a scenario's seeded layout (repeated
     when fewer distinct edges pass over the target): the map, scenario, scene, objects,
     transit planner and actions."""
-    mf = load_map(map_path)
+    mf = load_map(map_path, robot)
     if mf.edges is None or mf.reach is None:
         raise ConfigError(f"{map_path} has no kinodynamic map (edges); build it with lmjx build-map")
-    sc = scenario(scenario_number)
+    sc = scenario(scenario_number, robot.profile.task_scale)
     layout = sample_layout(sc, seed)
     scene = build_scene(robot, sc)
     objects = object_qpos(scene, layout.poses)

@@ -531,7 +531,7 @@ def build_bundle(
     """Sample, solve and roll out the edges of `reach`'s failure, all in memory (the same
     edges `lmjx.edgestream` writes to a file in bounded memory)."""
     robot = robot or load_robot()
-    config = config or BundleConfig()
+    config = config or BundleConfig(interaction_points=robot.default_ips)
     config.validate(robot)
     failure = reach.failure
     device = device_description()

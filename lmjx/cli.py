@@ -47,6 +47,29 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _add_robot(p: argparse.ArgumentParser, from_map: bool = False) -> None:
+    default = "the robot the map was built for" if from_map else "panda"
+    p.add_argument(
+        "--robot",
+        metavar="NAME|PATH",
+        help=f"the arm: a shipped robot's name (panda, ur5e; see lmjx robots) or the path of an MJCF that meets "
+        f"docs/ROBOTS.md (check it with lmjx robot check PATH) (default: {default})",
+    )
+
+
+def _load_robot(args: argparse.Namespace):
+    """The robot --robot names (the Panda when it is not given)."""
+    from .robot import load_robot
+
+    return load_robot(args.robot)
+
+
+def _failure_help(what: str = "the failure") -> str:
+    return (
+        f"{what}: none, one of the robot's presets (the Panda's case1, case2; see lmjx robots) or e.g. 'J2=0.3,J4=-1.5'"
+    )
+
+
 def _add_device(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--device",
@@ -91,9 +114,8 @@ def _add_reach_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=_positive_int, default=48, help="IK iterations per restart (default 48)")
     p.add_argument(
         "--ips",
-        default="hand,wrist,forearm",
-        help="interaction points cycled by NPM attempts, comma separated (default hand,wrist,forearm; "
-        "the model also has palm, flange, forearm_mid, forearm_proximal, elbow, upper_arm)",
+        help="interaction points (the robot's ip_<name> sites) cycled by NPM attempts, comma separated (default "
+        "hand,wrist,forearm; lmjx robots lists each robot's)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same map (default 0)")
 
@@ -101,7 +123,8 @@ def _add_reach_options(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lmjx",
-        description="Reach maps, kinodynamic edge bundles and planning for a Franka Panda with locked joints "
+        description="Reach maps, kinodynamic edge bundles and planning for a robot arm with locked joints (the "
+        "Franka Panda by default, the UR5e, or any arm described by an MJCF: see lmjx robots and docs/ROBOTS.md) "
         "(after Briscoe-Martinez et al., 'Exploring How Non-Prehensile Manipulation Expands Capability in "
         "Robots Experiencing Multi-Joint Failure').",
     )
@@ -116,10 +139,12 @@ def build_parser() -> argparse.ArgumentParser:
         "reach",
         help="Reach-Ability map of a failure (paper Algorithm 1)",
         description="Compute which cells of the task plane the arm can grasp at (PM), only push or poke (NPM), or "
-        "not reach, with a given failure.  Failures: none, case1 (J3, J5, J7 locked), case2 (J6, J7 locked) or "
-        "an explicit list such as 'J2=0.3,J4=-1.5' (radians).",
+        "not reach, with a given failure.  Failures: none, a preset of the robot (the Panda's case1: J3, J5, J7 "
+        "locked; case2: J6, J7 locked; lmjx robots lists every robot's) or an explicit list such as "
+        "'J2=0.3,J4=-1.5' (radians).",
     )
-    p.add_argument("--failure", required=True, help="none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
+    p.add_argument("--failure", required=True, help=_failure_help())
+    _add_robot(p)
     _add_reach_options(p)
     p.add_argument("--out", help="write the map to this HDF5 file (schema in maps/README.md)")
     p.add_argument("--png", help="write a heatmap (raw and smoothed) to this PNG file")
@@ -139,14 +164,17 @@ def build_parser() -> argparse.ArgumentParser:
         "runs again.  Every local accelerator shares the work; several hosts: the same command on each with "
         "--coordinator HOST:PORT --num-processes N --process-id I.",
     )
-    p.add_argument("--failure", required=True, help="none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
+    p.add_argument("--failure", required=True, help=_failure_help())
+    _add_robot(p)
     p.add_argument(
         "--edges",
         type=_positive_int,
         help="edges to sample, up to 50,000,000 (default: 10,000 on a CPU, 100,000 on a GPU); only valid ones "
         "are stored",
     )
-    p.add_argument("--out", help="map file to write (default maps/<failure>.h5)")
+    p.add_argument(
+        "--out", help="map file to write (default maps/<failure>.h5; another robot's: maps/<robot>/<failure>.h5)"
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed for the map and the edges (default 0)")
     p.add_argument("--cell", type=_positive_float, default=0.02, help="reach cell edge in metres (default 0.02)")
     p.add_argument(
@@ -154,9 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         help="edges computed and saved at a time (default: by platform); not part of the result",
     )
-    p.add_argument(
-        "--yes", action="store_true", help="start even when the preflight estimates more than a day of work"
-    )
+    p.add_argument("--yes", action="store_true", help="start even when the preflight estimates more than a day of work")
     p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
     p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
     p.add_argument("--num-processes", type=_positive_int, default=1, help="multi-process runs: how many (default 1)")
@@ -175,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", help="refuse the map unless it was built for this failure")
+    _add_robot(p, from_map=True)
     p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
     _add_planner_options(p)
     p.add_argument("--render", help="write a rendering of the trial: .png (frame strip), .gif or .mp4")
@@ -189,11 +216,12 @@ def build_parser() -> argparse.ArgumentParser:
         "results.json after every trial (a rerun continues where it stopped), then report.md, bubble.png and "
         "actions.png.  Maps come from --maps/<failure>.h5 (lmjx build-map).",
     )
-    p.add_argument("--failures", default="case1,case2", help="comma separated (default case1,case2)")
+    p.add_argument("--failures", help="comma separated (default: the robot's presets; the Panda's case1,case2)")
+    _add_robot(p)
     p.add_argument("--scenarios", default="1,2,3", help="comma separated (default 1,2,3)")
     p.add_argument("--asms", default="random,lazy,greedy", help="comma separated (default random,lazy,greedy)")
     p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
-    p.add_argument("--maps", default="maps", help="folder of <failure>.h5 map files (default maps)")
+    p.add_argument("--maps", help="folder of <failure>.h5 map files (default maps; another robot's: maps/<robot>)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
     _add_planner_options(p)
     p.add_argument("--out", required=True, help="output folder")
@@ -208,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
         "smallest PM area (ties: largest NPM+PM) is reported as 'best'; this is how case2's angles were chosen.",
     )
     p.add_argument("--joints", required=True, help="locked joints to sweep, e.g. J6,J7")
+    _add_robot(p)
     p.add_argument("--grid", type=_positive_int, default=9, help="angles per joint (default 9)")
     p.add_argument("--base", default="none", help="further joints held locked during the sweep, e.g. 'J3=0'")
     p.add_argument(
@@ -228,23 +257,28 @@ def build_parser() -> argparse.ArgumentParser:
         description="Validate a map file and describe its contents.",
     )
     p.add_argument("path", help="an lmjx map file (.h5)")
+    _add_robot(p, from_map=True)
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
 
     p = sub.add_parser(
         "scenarios",
         help="pictures and descriptions of the three evaluation scenarios",
         description="Print each scenario's description and write <out>/scenario<N>.png: a MuJoCo rendering of the "
-        "scene (the arm at the case-2 park pose) beside a top-down diagram of the layout.  Rendering needs OpenGL "
+        "scene (the arm at its park pose for case2, or for no failure if the robot has no case2) beside a top-down "
+        "diagram of the layout; the scenarios sit where they do for the Panda, scaled to the robot's size.  "
+        "Rendering needs OpenGL "
         "(on a headless machine: MUJOCO_GL=osmesa with OSMesa installed, or MUJOCO_GL=egl on a GPU); without it "
         "only the diagram is drawn.",
     )
     p.add_argument("--out", default=".", help="folder for the pictures (default: the current folder)")
     p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
+    _add_robot(p)
 
     p = sub.add_parser(
         "atlas",
         help="failure atlas: PM and NPM+PM areas for every 2- and 3-joint lock",
-        description="For every set of locked joints of the given sizes (21 pairs, 35 triples) and K lock angles per "
+        description="For every set of locked joints of the given sizes (the Panda's 7 joints: 21 pairs, 35 "
+        "triples; the UR5e's 6: 15 and 20) and K lock angles per "
         "locked joint (one drawn in each of K equal bins of the joint's range, seeded), compute the Reach-Ability "
         "map and store its labels and areas in one HDF5 file.  One IK program serves every failure, and every "
         "launch is split over all local accelerators (JAX sharding).  Resumable: progress is kept in "
@@ -254,7 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--joints", default="2,3", help="numbers of locked joints, comma separated (default 2,3)")
     p.add_argument("--angles", type=_positive_int, default=3, help="K, lock angles per locked joint (default 3)")
-    p.add_argument("--out", default="maps/atlas.h5", help="HDF5 file to write (default maps/atlas.h5)")
+    _add_robot(p)
+    p.add_argument("--out", help="HDF5 file to write (default maps/atlas.h5; another robot's: maps/<robot>/atlas.h5)")
     p.add_argument("--group", type=_positive_int, default=256, help="maps per series of launches and checkpoint (256)")
     _add_reach_options(p)
     p.add_argument("--summary", help="also write a Markdown summary here (and its figure beside it as .png)")
@@ -274,6 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
         "time whole Reach-Ability maps.  Compile time is reported apart from run time.",
     )
     p.add_argument("--quick", action="store_true", help="small sizes that finish in about a minute on a CPU")
+    _add_robot(p)
     p.add_argument("--sizes", help="comma-separated IK batch sizes (default: by device and --quick)")
     p.add_argument("--repeats", type=_positive_int, default=3, help="timed repetitions per figure; the median is kept")
     p.add_argument(
@@ -285,11 +321,13 @@ def build_parser() -> argparse.ArgumentParser:
         "against C MuJoCo's over some 200 Greedy decisions; needs --maps with case1.h5 and case2.h5) "
         "(default: ik,maps,rollouts,planner)",
     )
-    p.add_argument("--maps", default="maps", help="agreement: folder of case1.h5 and case2.h5 (default maps)")
+    p.add_argument("--maps", help="agreement: folder of the robot's preset maps (default maps, or maps/<robot>)")
     p.add_argument(
         "--agreement-seeds", type=_positive_int, default=12, help="agreement: trials per failure and scenario (12)"
     )
-    p.add_argument("--planner-map", default="maps/case2.h5", help="map for the planner section (default maps/case2.h5)")
+    p.add_argument(
+        "--planner-map", help="map for the planner section (default maps/case2.h5, or maps/<robot>/case2.h5)"
+    )
     p.add_argument(
         "--candidates",
         help="planner section: candidate counts to score, comma separated (default 256,1024,4096 with a GPU "
@@ -299,6 +337,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="write the results as JSON to this file")
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
     _add_device(p)
+
+    p = sub.add_parser(
+        "robots",
+        help="the shipped robots, their joints and failure presets",
+        description="List the robots lmjx ships (use them with --robot NAME): joints, limits, interaction points and "
+        "failure presets.  Any other arm: --robot PATH to an MJCF that meets docs/ROBOTS.md.",
+    )
+    p.add_argument("--json", action="store_true", help="print JSON on stdout")
+
+    p = sub.add_parser(
+        "robot",
+        help="check a robot description (MJCF) against lmjx's contract",
+        description="lmjx robot check PATH: validate an MJCF against docs/ROBOTS.md; every missing or inconsistent "
+        "part is named on a line of its own (exit status 2); a file that passes is summarised.",
+    )
+    rsub = p.add_subparsers(dest="robot_command", required=True, parser_class=_Parser, metavar="ACTION")
+    c = rsub.add_parser("check", help="validate an MJCF against docs/ROBOTS.md", description="Validate an MJCF.")
+    c.add_argument("path", help="the MJCF file (.xml), or a shipped robot's name")
+    c.add_argument("--json", action="store_true", help="print JSON on stdout")
     return parser
 
 
@@ -319,11 +376,12 @@ def _set_device(choice: str, probe: bool = True) -> None:
         raise LmjxError(f"no {choice.upper()} is available to JAX ({first}); use --device auto or cpu") from None
 
 
-def _reach_config(args: argparse.Namespace):
-    from .reach import ReachConfig
+def _reach_config(args: argparse.Namespace, robot):
+    from .reach import reach_config
 
-    ips = tuple(s.strip() for s in args.ips.split(",") if s.strip())
-    return ReachConfig(
+    ips = tuple(s.strip() for s in args.ips.split(",") if s.strip()) if args.ips is not None else robot.default_ips
+    return reach_config(
+        robot,
         cell=args.cell,
         attempts=args.attempts,
         restarts=args.restarts,
@@ -343,11 +401,10 @@ def _emit(args: argparse.Namespace, summary: dict, lines: Sequence[str]) -> None
 def cmd_reach(args: argparse.Namespace) -> int:
     from .failure import parse_failure
     from .fileio import check_writable
-    from .robot import load_robot
 
-    robot = load_robot()
+    robot = _load_robot(args)
     failure = parse_failure(args.failure, robot)
-    config = _reach_config(args)
+    config = _reach_config(args, robot)
     config.validate(robot)
     if args.out:
         check_writable(args.out, "map file")
@@ -385,9 +442,8 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
     from .failure import parse_failure
     from .fileio import check_writable, write_text_atomic
     from .locksearch import lock_grid, lock_search, parse_joints
-    from .robot import load_robot
 
-    robot = load_robot()
+    robot = _load_robot(args)
     joints = parse_joints(args.joints, robot)
     base = parse_failure(args.base, robot)
     clash = set(joints) & set(base.locked_joints)
@@ -395,7 +451,7 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
         raise ConfigError(f"J{min(clash)} is both swept (--joints) and held (--base)")
     if len(joints) + len(base.locked) >= robot.nq:
         raise ConfigError("the sweep would lock every joint")
-    config = _reach_config(args)
+    config = _reach_config(args, robot)
     config.validate(robot)
     if args.png and len(joints) != 2:
         raise ConfigError("--png draws a 2-D grid: give exactly two --joints")
@@ -465,17 +521,16 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
     return 0
 
 
-def _default_map_path(spec: str) -> str:
+def _default_map_path(spec: str, robot) -> str:
     safe = "".join(c if c.isalnum() or c in "-." else "_" for c in spec)
-    return f"maps/{safe}.h5"
+    return f"{robot.maps_dir}/{safe}.h5"
 
 
 def cmd_build_map(args: argparse.Namespace) -> int:
     from .bundle import BundleConfig
     from .edgestream import build_map, partial_path
     from .failure import parse_failure
-    from .reach import ReachConfig
-    from .robot import load_robot
+    from .reach import reach_config
 
     if args.coordinator or args.num_processes > 1:
         if not args.coordinator:
@@ -487,11 +542,13 @@ def cmd_build_map(args: argparse.Namespace) -> int:
         init_distributed(args.coordinator, args.num_processes, args.process_id)
     import jax
 
-    robot = load_robot()
+    robot = _load_robot(args)
     failure = parse_failure(args.failure, robot)
-    reach_cfg = ReachConfig(cell=args.cell, seed=args.seed)
-    bundle_cfg = BundleConfig(edges=args.edges, seed=args.seed, build_chunk=args.chunk)
-    out = args.out or _default_map_path(failure.spec)
+    reach_cfg = reach_config(robot, cell=args.cell, seed=args.seed)
+    bundle_cfg = BundleConfig(
+        edges=args.edges, seed=args.seed, build_chunk=args.chunk, interaction_points=robot.default_ips
+    )
+    out = args.out or _default_map_path(failure.spec, robot)
     lead = jax.process_index() == 0
     try:
         s = build_map(
@@ -515,6 +572,7 @@ def cmd_build_map(args: argparse.Namespace) -> int:
     reach = m.reach
     assert reach is not None
     summary = {
+        "robot": robot.key,
         "failure": failure.spec,
         "out": out,
         "seed": args.seed,
@@ -529,7 +587,8 @@ def cmd_build_map(args: argparse.Namespace) -> int:
     m.close()
     rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)
     lines = [
-        f"failure {failure.describe()} on {s['device']} ({s['devices']} device(s), {s['processes']} process(es)): "
+        f"{robot.key}, failure {failure.describe()} on {s['device']} ({s['devices']} device(s), "
+        f"{s['processes']} process(es)): "
         f"map written to {out}",
         f"  reach: PM {reach.areas()['pm']:.4f} m^2, NPM+PM {reach.areas()['npm_pm']:.4f} m^2 ({reach.seconds:.2f} s)",
         f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
@@ -546,9 +605,12 @@ def cmd_build_map(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     from .mapfile import load_map
 
-    m = load_map(args.path, lazy=True)  # the states stay in the file: a map of any size answers at once
+    robot = _load_robot(args) if args.robot else None  # None: the robot the map names
+    m = load_map(args.path, robot, lazy=True)  # the states stay in the file: a map of any size answers at once
+    assert m.robot is not None
     info: dict = {
         "path": str(m.path),
+        "robot": m.robot.key,
         "schema_version": int(m.attrs["schema_version"]),
         "lmjx_version": str(m.attrs["lmjx_version"]),
         "robot_model_hash": str(m.attrs["robot_model_hash"]),
@@ -558,7 +620,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     }
     lines = [
         f"{m.path}: lmjx map, schema {info['schema_version']}, written by lmjx {info['lmjx_version']}",
-        f"  failure {m.failure.describe()}",
+        f"  robot {m.robot.key} ({m.robot.profile.description or m.robot.name}), failure {m.failure.describe()}",
     ]
     if m.reach is not None:
         r = m.reach
@@ -613,11 +675,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from .failure import parse_failure
     from .fileio import check_writable
     from .mapfile import load_map
-    from .robot import load_robot
     from .trial import make_simulator, run_trial, setup_trial
 
-    robot = load_robot()
-    m = load_map(args.map, robot)
+    m = load_map(args.map, _load_robot(args) if args.robot else None)  # None: the robot the map names
+    robot = m.robot
+    assert robot is not None
     if args.failure is not None and parse_failure(args.failure, robot).locked != m.failure.locked:
         raise ConfigError(f"{args.map} holds a map of failure {m.failure.spec}, not {args.failure}")
     if m.edges is None:
@@ -640,6 +702,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if recorder is not None:
         recorder.write(args.render)
     summary = {
+        "robot": robot.key,
         "failure": m.failure.spec,
         "scenario": args.scenario,
         "asm": args.asm,
@@ -680,7 +743,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .errors import ConfigError
     from .evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, simulator_description, summarize
     from .fileio import check_writable, write_text_atomic
-    from .robot import load_robot
 
     def split(text: str, cast=str):
         try:
@@ -690,9 +752,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     from dataclasses import replace
 
-    robot = load_robot()
+    robot = _load_robot(args)
+    failures = split(args.failures) if args.failures else tuple(robot.profile.presets)
+    if not failures:
+        raise ConfigError(f"the robot {robot.key} has no failure presets: give --failures (e.g. none)")
     config = EvalConfig(
-        failures=split(args.failures),
+        failures=failures,
         scenarios=split(args.scenarios, int),
         asms=split(args.asms),
         trials=args.trials,
@@ -701,12 +766,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     config.validate()
     out = Path(args.out)
     check_writable(out / "results.json", "results")
-    maps = load_maps(robot, config.failures, Path(args.maps))
+    maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))
     simulates = bool(set(config.asms) - {"random"})
     sim_name, why = _resolve_sim(args) if simulates else ("cpu", "random does not simulate")
     config = replace(config, planner=_planner_config(args, "greedy", sim_name), backend=sim_name)
     records = evaluate(robot, maps, config, out)
-    write_text_atomic(out / "report.md", report_markdown(records, config, simulator_description(sim_name)))
+    write_text_atomic(out / "report.md", report_markdown(records, config, simulator_description(sim_name), robot))
     plots(records, out)
     rows = summarize(records)
     lines = [
@@ -739,19 +804,18 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     from .failure import parse_failure
     from .fileio import check_writable
     from .render import gl_problem
-    from .robot import load_robot
     from .scenario_figure import scenario_picture
     from .scenarios import SCENARIOS, sample_layout, scenario
 
     out = Path(args.out)
     check_writable(out / "scenario1.png", "pictures")
-    robot = load_robot()
+    robot = _load_robot(args)
     problem = gl_problem()
     if problem is not None:
         print(f"note: drawing the diagrams only: {problem}", file=sys.stderr)
-    q = park_pose(robot, parse_failure("case2", robot))
+    q = park_pose(robot, parse_failure("case2" if "case2" in robot.profile.presets else "none", robot))
     for n in sorted(SCENARIOS):
-        sc = scenario(n)
+        sc = scenario(n, robot.profile.task_scale)
         path = out / f"scenario{n}.png"
         scenario_picture(robot, sc, sample_layout(sc, args.seed), q, path, with_render=problem is None)
         print(f"scenario {n}: {sc.title}\n  {sc.description}\n  picture: {path}")
@@ -776,10 +840,10 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     import jax
 
     from .atlas import AtlasConfig, build_atlas, expected_maps
-    from .robot import load_robot
 
-    robot = load_robot()
-    reach = replace(_reach_config(args), chunk=args.chunk)
+    robot = _load_robot(args)
+    out = args.out or f"{robot.maps_dir}/atlas.h5"
+    reach = replace(_reach_config(args, robot), chunk=args.chunk)
     config = AtlasConfig(sizes=sizes, angles=args.angles, seed=args.seed, group=args.group, reach=reach)
     config.validate(robot)
     lead = jax.process_index() == 0
@@ -788,11 +852,10 @@ def cmd_atlas(args: argparse.Namespace) -> int:
 
         check_writable(args.summary, "summary")
     try:
-        st = build_atlas(robot, config, args.out, progress=True, sharded=not args.no_shard)
+        st = build_atlas(robot, config, out, progress=True, sharded=not args.no_shard)
     except KeyboardInterrupt:
         print(
-            f"lmjx atlas: interrupted; finished groups are kept in {args.out}.partial: rerun the same command to "
-            "continue",
+            f"lmjx atlas: interrupted; finished groups are kept in {out}.partial: rerun the same command to continue",
             file=sys.stderr,
         )
         sys.stdout.flush()
@@ -810,9 +873,10 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     areas = st.areas()
     session = st.run["sessions"][-1]
     summary = {
-        "out": args.out,
+        "robot": robot.key,
+        "out": out,
         "maps": st.n,
-        "expected_maps": expected_maps(sizes, args.angles),
+        "expected_maps": expected_maps(sizes, args.angles, robot.nq),
         "complete": bool(st.done.all()),
         "device": session["device"],
         "devices": session["devices"],
@@ -824,13 +888,84 @@ def cmd_atlas(args: argparse.Namespace) -> int:
         "rescued_by_npm": int(((areas["pm"] == 0) & (areas["npm_pm"] > 0)).sum()),
     }
     lines = [
-        f"atlas {args.out}: {st.n} maps ({summary['maps_this_run']} computed now) on {summary['devices']} "
+        f"atlas {out} ({robot.key}): {st.n} maps ({summary['maps_this_run']} computed now) on {summary['devices']} "
         f"device(s) of {summary['processes']} process(es), {summary['device']}",
         f"  {summary['seconds']:.1f} s (compile {summary['compile_s']:.1f} s)",
         f"  PM = 0 in {summary['pm_zero']} maps; NPM rescues {summary['rescued_by_npm']} of them",
     ]
     if args.summary:
         lines.append(f"  summary written to {args.summary}")
+    _emit(args, summary, lines)
+    return 0
+
+
+def cmd_robots(args: argparse.Namespace) -> int:
+    from .robot import ROBOTS, load_robot
+
+    rows = []
+    for name in ROBOTS:
+        r = load_robot(name)
+        rows.append(
+            {
+                "name": name,
+                "description": r.profile.description,
+                "file": str(r.path),
+                "joints": r.nq,
+                "joint_names": list(r.joint_names),
+                "interaction_points": sorted(r.interaction_points),
+                "presets": {k: {f"J{j}": a for j, a in sorted(v.items())} for k, v in r.profile.presets.items()},
+                "maps": r.maps_dir,
+                "model_hash": r.model_hash,
+            }
+        )
+    lines = []
+    for row in rows:
+        presets = "; ".join(
+            f"{k} (" + ", ".join(f"{j}={a:.4g}" for j, a in v.items()) + ")" for k, v in row["presets"].items()
+        )
+        lines += [
+            f"{row['name']}{' (default)' if row['name'] == 'panda' else ''}: {row['description']}",
+            f"  {row['joints']} joints: {', '.join(row['joint_names'])}",
+            f"  failure presets: {presets or 'none yet'}",
+            f"  interaction points: {', '.join(row['interaction_points'])}",
+            f"  {row['file']}; maps in {row['maps']}/",
+        ]
+    lines.append("any other arm: --robot PATH to an MJCF that meets docs/ROBOTS.md (lmjx robot check PATH)")
+    _emit(args, {"robots": rows}, lines)
+    return 0
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    from .robot import check_robot, load_robot, resolve_robot
+
+    key, path = resolve_robot(args.path)
+    problems = check_robot(path)
+    if problems:
+        if args.json:
+            print(json.dumps({"path": str(path), "ok": False, "problems": problems}, indent=2))
+        for p in problems:
+            print(f"{path}: {p}", file=sys.stderr)
+        return EXIT_USAGE
+    r = load_robot(key)
+    summary = {
+        "path": str(path),
+        "ok": True,
+        "name": r.name,
+        "joints": r.nq,
+        "joint_names": list(r.joint_names),
+        "capsules": len(r.arm.cap_r),
+        "checked_pairs": len(r.arm.self_pairs),
+        "interaction_points": sorted(r.interaction_points),
+        "tool_body": r.tool_body_name,
+        "task_scale": r.profile.task_scale,
+        "model_hash": r.model_hash,
+    }
+    lines = [
+        f"{path}: an lmjx robot: '{r.name}', {r.nq} hinge joints ({', '.join(r.joint_names)}), "
+        f"{summary['capsules']} capsules ({summary['checked_pairs']} self-collision pairs checked)",
+        f"  tool body {r.tool_body_name}; interaction points {', '.join(summary['interaction_points'])}; "
+        f"scenarios scaled by {r.profile.task_scale:g}",
+    ]
     _emit(args, summary, lines)
     return 0
 
@@ -851,6 +986,8 @@ COMMANDS = {
     "bench": cmd_bench,
     "atlas": cmd_atlas,
     "scenarios": cmd_scenarios,
+    "robots": cmd_robots,
+    "robot": cmd_robot,
 }
 
 

@@ -93,6 +93,11 @@ def evaluate(
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
     records = _load_results(results_path)
+    others = sorted({str(r.get("robot", "panda")) for r in records} - {robot.key})
+    if others:
+        raise ConfigError(
+            f"{results_path} holds trials of the robot '{others[0]}', not '{robot.key}'; use another --out"
+        )
     done = {(r["failure"], r["scenario"], r["asm"], r["seed"]) for r in records}
     todo = [
         (f, s, a, trial_seed(config.seed, s, t))
@@ -121,6 +126,7 @@ def evaluate(
             f, s_, a, seed = group[i]
             records.append(
                 {
+                    "robot": robot.key,
                     "failure": f,
                     "scenario": s_,
                     "asm": a,
@@ -178,10 +184,10 @@ def simulator_description(name: str) -> str:
     return f"{name}: C MuJoCo mujoco.rollout on {os.cpu_count()} cores, {what}"
 
 
-def report_markdown(records: list[dict], config: EvalConfig, simulator: str) -> str:
+def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:
     rows = summarize(records)
     lines = [
-        "# lmjx evaluation",
+        "# lmjx evaluation" + (f": {robot.profile.description or robot.key}" if robot is not None else ""),
         "",
         f"{len(records)} trials ({config.trials} per cell), simulator {simulator}; planner: "
         f"greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} tries, "

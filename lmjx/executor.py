@@ -6,8 +6,8 @@ drawn per trial from its seed:
   * object friction x U(0.7, 1.3) per object, table friction x U(0.8, 1.2);
   * object masses x U(0.8, 1.25) per object;
   * the robot's collision capsules U(-3, +3) mm thicker or thinner;
-  * servo tracking with Franka-like joint gains and its torque limits instead of near-exact
-    playback;
+  * servo tracking with the robot's "real" joint gains (`RobotProfile.real_kp`, `real_kv`:
+    Franka-like for the Panda) and its torque limits instead of near-exact playback;
   * object poses observed with noise: N(0, 2 mm) on x, y and N(0, 1.5 deg) on yaw.
 The planner sees only observations.  A real robot backend implements `Executor`.
 """
@@ -29,7 +29,7 @@ from .scene import Physics, Scene, build_scene, object_qpos, quat_yaw, read_obje
 
 @dataclass
 class Observation:
-    robot_q: np.ndarray  # (7,) measured joint angles
+    robot_q: np.ndarray  # (nq,) measured joint angles
     objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
     time: float  # seconds of execution so far
 
@@ -44,19 +44,27 @@ class Executor(Protocol):
         ...
 
 
-# Franka-like servo gains [Nm/rad], [Nm s/rad] (the joint impedance of libfranka's examples).
-REAL_KP = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)
-REAL_KV = (50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0)
+def real_gains(robot: Robot) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The "real" world's joint servo gains kp [Nm/rad], kv [Nm s/rad]: the robot profile's
+    (the Panda's: the joint impedance of libfranka's examples), else stiffness in proportion
+    to each joint's torque limit (7 Nm/rad per Nm, about the Panda's base joints') with a
+    twelfth of it as damping."""
+    p = robot.profile
+    if p.real_kp is not None and p.real_kv is not None:
+        return p.real_kp, p.real_kv
+    kp = tuple(float(7.0 * t) for t in robot.tau_max)
+    return kp, tuple(k / 12.0 for k in kp)
 
 
 def real_physics(robot: Robot, n_objects: int, rng: np.random.Generator) -> Physics:
+    kp, kv = real_gains(robot)
     return Physics(
         friction_scale=tuple(rng.uniform(0.7, 1.3, n_objects)),
         mass_scale=tuple(rng.uniform(0.8, 1.25, n_objects)),
         table_friction=0.5 * rng.uniform(0.8, 1.2),
         robot_radius_offset=float(rng.uniform(-0.003, 0.003)),
-        servo_kp=REAL_KP,
-        servo_kv=REAL_KV,
+        servo_kp=kp,
+        servo_kv=kv,
         servo_force=tuple(robot.tau_max),
         robot_table_contacts=True,
     )

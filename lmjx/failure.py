@@ -1,8 +1,10 @@
-"""Locked-joint failures: the named cases and the 'J2=0.3,J4=-1.5' syntax.
+"""Locked-joint failures: a robot's named presets and the 'J2=0.3,J4=-1.5' syntax.
 
-A `Failure` says which joints are locked and at which angles.  Everything downstream
-(IK, Jacobians, dynamics) treats locked joints as constants and works over `free` only.
-The lock angles of the named cases live here and nowhere else; README.md explains them.
+A `Failure` says which joints of an nq-joint arm are locked and at which angles.
+Everything downstream (IK, Jacobians, dynamics) treats locked joints as constants and works
+over `free` only.  The presets of each robot (the Panda's case1 and case2, the UR5e's
+case1 and case2 of its own) live with the robot (`robot.PROFILES`); README.md and docs/ROBOTS.md
+explain how each was chosen.
 """
 
 from __future__ import annotations
@@ -15,49 +17,35 @@ import numpy as np
 from .errors import FailureSpecError
 from .robot import Robot
 
-# The paper gives no lock angles; these are lmjx's choices, from full Reach-Ability maps
-# over grids of lock angles (README.md, "Failure cases", has the searches and the reasons):
-# case1: J7 at its ready-pose angle; (J3, J5) from a 7 x 7 grid
-#        (`lmjx lock-search --joints J3,J5 --base J7=0.785398 --grid 7`): the lock whose PM and
-#        NPM+PM areas, relative to no failure, are closest to the paper's case 1 (0.62/0.85
-#        and 0.85/0.92): grasping limited to part of the table, pushing almost everywhere.
-# case2: (J6, J7) from a 9 x 9 grid (`lmjx lock-search --joints J6,J7 --grid 9`): the lock
-#        with the smallest PM area (0: the gripper cannot grasp anywhere), ties broken by the
-#        largest NPM+PM area; a finer search around it keeps PM at 0 within +-0.1 rad.
-PRESETS: dict[str, dict[int, float]] = {
-    "none": {},
-    "case1": {3: 2.8773, 5: 0.0, 7: math.pi / 4},
-    "case2": {6: 0.935, 7: -0.7193},
-}
-
 
 @dataclass(frozen=True)
 class Failure:
-    """A set of locked joints (1-based joint numbers) and their angles in radians."""
+    """A set of locked joints (1-based joint numbers) of an nq-joint arm and their angles in radians."""
 
     name: str
-    locked: tuple[tuple[int, float], ...]  # ((joint number 1..7, angle), ...) sorted
+    locked: tuple[tuple[int, float], ...]  # ((joint number 1..nq, angle), ...) sorted
+    nq: int
 
     @property
     def locked_joints(self) -> tuple[int, ...]:
         return tuple(j for j, _ in self.locked)
 
-    def free(self, nq: int = 7) -> tuple[int, ...]:
+    def free(self, nq: int | None = None) -> tuple[int, ...]:
         """0-based indices of the joints that still move."""
         locked = set(self.locked_joints)
-        return tuple(i for i in range(nq) if i + 1 not in locked)
+        return tuple(i for i in range(nq or self.nq) if i + 1 not in locked)
 
-    def q_fixed(self, nq: int = 7) -> np.ndarray:
+    def q_fixed(self, nq: int | None = None) -> np.ndarray:
         """(nq,) joint vector holding the locked angles (zeros at free joints)."""
-        q = np.zeros(nq)
+        q = np.zeros(nq or self.nq)
         for j, a in self.locked:
             q[j - 1] = a
         return q
 
     @property
     def spec(self) -> str:
-        """Canonical spec string: the preset name or 'J6=1.5,J7=-0.3'."""
-        if self.name in PRESETS:
+        """Canonical spec string: the preset name (or 'none') or 'J6=1.5,J7=-0.3'."""
+        if self.name and "=" not in self.name:
             return self.name
         return ",".join(f"J{j}={a:g}" for j, a in self.locked)
 
@@ -76,17 +64,23 @@ def _check_angle(robot: Robot, joint: int, angle: float, spec: str) -> None:
         )
 
 
+def _names(robot: Robot) -> str:
+    return ", ".join(["none", *robot.profile.presets])
+
+
 def parse_failure(spec: str, robot: Robot) -> Failure:
-    """Parse 'none', 'case1', 'case2' or a comma list 'J2=0.3,J4=-1.5' (radians)."""
+    """Parse 'none', one of the robot's presets, or a comma list 'J2=0.3,J4=-1.5' (radians)."""
     text = spec.strip()
+    example = "'J2=0.3,J4=-1.5'"
     if not text:
-        raise FailureSpecError("empty failure spec; use none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'")
+        raise FailureSpecError(f"empty failure spec; use {_names(robot)} or e.g. {example}")
     key = text.lower()
-    if key in PRESETS:
-        locked = tuple(sorted(PRESETS[key].items()))
+    presets = {"none": {}, **robot.profile.presets}
+    if key in presets:
+        locked = tuple(sorted(presets[key].items()))
         for j, a in locked:
             _check_angle(robot, j, a, text)
-        return Failure(key, locked)
+        return Failure(key, locked, robot.nq)
     nq = robot.nq
     angles: dict[int, float] = {}
     for part in text.split(","):
@@ -95,7 +89,8 @@ def parse_failure(spec: str, robot: Robot) -> Failure:
         name = name.strip().upper()
         if not sep or not name.startswith("J") or not name[1:].isdigit():
             raise FailureSpecError(
-                f"failure '{spec}': cannot read '{part}'; use none, case1, case2 or e.g. 'J2=0.3,J4=-1.5'"
+                f"failure '{spec}': cannot read '{part}'; use {_names(robot)} (the presets of {robot.key}) or e.g. "
+                f"{example}"
             )
         joint = int(name[1:])
         if not 1 <= joint <= nq:
@@ -111,4 +106,4 @@ def parse_failure(spec: str, robot: Robot) -> Failure:
     if len(angles) >= nq:
         raise FailureSpecError(f"failure '{spec}': locks every joint; at least one must stay free")
     locked = tuple(sorted(angles.items()))
-    return Failure(",".join(f"J{j}={a:g}" for j, a in locked), locked)
+    return Failure(",".join(f"J{j}={a:g}" for j, a in locked), locked, nq)

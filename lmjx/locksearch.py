@@ -15,7 +15,8 @@ import numpy as np
 
 from .errors import ConfigError
 from .failure import Failure, _check_angle
-from .reach import ReachConfig, reach_map
+from .progress import Progress
+from .reach import ReachConfig, reach_config, reach_map
 from .robot import Robot, load_robot
 
 
@@ -102,21 +103,24 @@ def lock_search(
     `base` adds further locked joints held fixed over the whole search.
     """
     robot = robot or load_robot()
-    config = dataclasses.replace(config or ReachConfig(), traced_locks=True)
+    config = dataclasses.replace(config or reach_config(robot), traced_locks=True)
     shape = tuple(len(g) for g in grids)
     pm = np.zeros(shape)
     npm = np.zeros(shape)
     seconds = 0.0
     base_locks = dict(base.locked) if base else {}
+    bar = Progress(total=int(np.prod(shape)), desc="lock search", enabled=progress, unit="map")
     for idx in itertools.product(*(range(s) for s in shape)):
         locks = dict(base_locks)
         for k, i in enumerate(idx):
             _check_angle(robot, joints[k], float(grids[k][i]), "lock search")
             locks[joints[k]] = float(grids[k][i])
         locked = tuple(sorted(locks.items()))
-        failure = Failure(",".join(f"J{j}={a:.4f}" for j, a in locked), locked)
-        res = reach_map(failure, config, robot=robot, progress=progress)
+        failure = Failure(",".join(f"J{j}={a:.4f}" for j, a in locked), locked, robot.nq)
+        res = reach_map(failure, config, robot=robot)
         a = res.areas(smooth=True)
         pm[idx], npm[idx] = a["pm"], a["npm_pm"]
         seconds += res.seconds
+        bar.update(1)
+    bar.close()
     return LockSearchResult(joints, grids, pm, npm, seconds)

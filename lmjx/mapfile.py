@@ -23,7 +23,7 @@ from .errors import MapFileError
 from .failure import Failure
 from .fileio import atomic_path
 from .reach import ReachConfig, ReachResult
-from .robot import Robot, load_robot
+from .robot import ROBOTS, Robot, load_robot
 
 SCHEMA = "lmjx-map"
 SCHEMA_VERSION = 1
@@ -312,6 +312,7 @@ def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -
     f.attrs["schema"] = SCHEMA
     f.attrs["schema_version"] = SCHEMA_VERSION
     f.attrs["lmjx_version"] = __version__
+    f.attrs["robot"] = robot.key if robot.key in ROBOTS else robot.name
     f.attrs["robot_model"] = robot.name
     f.attrs["robot_model_hash"] = robot.model_hash
     f.attrs["failure"] = failure.spec
@@ -337,6 +338,7 @@ class MapFile:
     edges_attrs: dict = dataclasses.field(default_factory=dict)
     lazy: bool = False
     file: h5py.File | None = dataclasses.field(default=None, repr=False)
+    robot: Robot | None = dataclasses.field(default=None, repr=False)  # the robot it was built for
 
     def close(self) -> None:
         if self.file is not None:
@@ -346,6 +348,28 @@ class MapFile:
 
 def _attr_str(x: object) -> str:
     return x.decode() if isinstance(x, bytes) else str(x)
+
+
+def file_robot(attrs: dict) -> str:
+    """The robot a map or atlas file names: a shipped robot's name, or a user MJCF's model
+    name (files from before robots were named: the Panda)."""
+    return _attr_str(attrs.get("robot", "panda"))
+
+
+def robot_for_file(path: Path, attrs: dict, robot: Robot | None) -> Robot:
+    """The robot to read a file with: `robot` if it is the one the file was built for (else
+    MapFileError), or, when None, the shipped robot the file names."""
+    name = file_robot(attrs)
+    if robot is None:
+        if name not in ROBOTS:
+            raise MapFileError(
+                f"{path} was built for the robot '{name}' (a user's MJCF): pass --robot PATH to its file"
+            )
+        return load_robot(name)
+    mine = robot.key if robot.key in ROBOTS else robot.name
+    if name != mine and (name in ROBOTS or robot.key in ROBOTS):
+        raise MapFileError(f"{path} was built for the robot '{name}', not '{mine}'; use --robot {name} or rebuild it")
+    return robot
 
 
 def load_map(
@@ -368,7 +392,6 @@ def load_map(
         raise MapFileError(f"cannot read {p}: {e}") from None
     if not is_h5:
         raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)")
-    robot = robot or load_robot()
     try:
         f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
     except OSError as e:
@@ -384,17 +407,18 @@ def load_map(
                 raise MapFileError(
                     f"{p} has map schema version {version}; this lmjx ({__version__}) reads version {SCHEMA_VERSION}"
                 )
+            robot = robot_for_file(p, attrs, robot) if check_robot else (robot or load_robot(file_robot(attrs)))
             if check_robot and _attr_str(attrs.get("robot_model_hash", "")) != robot.model_hash:
                 other = _attr_str(attrs.get("robot_model_hash", ""))[:12]
                 raise MapFileError(
-                    f"{p} was built for another robot model (hash {other}..., "
+                    f"{p} was built for another version of the robot '{file_robot(attrs)}' (model hash {other}..., "
                     f"this lmjx has {robot.model_hash[:12]}...); rebuild the map"
                 )
             locked = tuple(
                 (int(j), float(a)) for j, a in zip(attrs["locked_joints"], attrs["locked_angles"], strict=True)
             )
             fail_name = _attr_str(attrs["failure"])
-            failure = Failure(fail_name, locked)
+            failure = Failure(fail_name, locked, robot.nq)
             reach = _read_reach(f["reach"], failure, robot, attrs) if "reach" in f else None
             edges = None
             if "edges" in f:
@@ -412,7 +436,9 @@ def load_map(
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
-    return MapFile(p, attrs, failure, reach, edges, edges_attrs, lazy=keep_open, file=f if keep_open else None)
+    return MapFile(
+        p, attrs, failure, reach, edges, edges_attrs, lazy=keep_open, file=f if keep_open else None, robot=robot
+    )
 
 
 def _config_to_attrs(g: h5py.Group, config: object) -> None:

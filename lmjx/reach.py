@@ -99,6 +99,18 @@ class ReachConfig:
         return default_ik_settings(iterations=self.iterations, cube_half=self.object_height / 2)
 
 
+def reach_config(robot: Robot, **overrides) -> ReachConfig:
+    """The default ReachConfig for `robot`: its default interaction points, and the task plane
+    scaled by its `task_scale` (the Panda's and the UR5e's: 1, the plane above); `overrides`
+    replace any field."""
+    s = robot.profile.task_scale
+    base: dict = {"interaction_points": robot.default_ips}
+    if s != 1.0:
+        d = ReachConfig()
+        base.update(x_range=(d.x_range[0] * s, d.x_range[1] * s), y_range=(d.y_range[0] * s, d.y_range[1] * s))
+    return ReachConfig(**{**base, **overrides})
+
+
 @dataclass
 class ReachResult:
     """A Reach-Ability map.  Arrays are indexed [iy, ix] (rows along y)."""
@@ -206,7 +218,7 @@ def reach_map(
 ) -> ReachResult:
     """Compute the Reach-Ability map of `failure` (a Failure or a spec such as 'case2')."""
     robot = robot or load_robot()
-    config = config or ReachConfig()
+    config = config or reach_config(robot)
     if isinstance(failure, str):
         failure = parse_failure(failure, robot)
     config.validate(robot)

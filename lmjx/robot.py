@@ -1,14 +1,19 @@
-"""The robot: loads the Panda MJCF once and exposes everything else derives from it.
+"""The robot: loads an arm's MJCF once and exposes everything else derives from it.
 
-`load_robot()` returns a `Robot` holding the compiled MuJoCo model, the static `ArmModel`
-the kernels consume (kinematic tree, capsules, checked pairs, sites), joint limits and
-the interaction points.  Nothing here computes kinematics; the kernels do.
+`load_robot(name_or_path)` returns a `Robot` holding the compiled MuJoCo model, the static
+`ArmModel` the kernels consume (kinematic tree, capsules, checked pairs, sites), joint limits,
+the interaction points, and the robot's profile (its failure presets, the "real" world's
+servo gains, the scale of the scenarios).  Shipped robots (`ROBOTS`): the Franka Panda
+(`panda`, the default) and the Universal Robots UR5e (`ur5e`); any other MJCF that meets
+the contract of docs/ROBOTS.md loads by its path (`check_robot` lists what it lacks).
+Nothing here computes kinematics; the kernels do.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,44 +21,124 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .errors import ConfigError, LmjxError
 from .kernels.dynamics import Inertials
 from .kernels.math3 import quat_to_mat
 from .kernels.model import ArmModel, Tree
 
-MODEL_PATH = Path(__file__).parent / "assets" / "panda.xml"
-JOINT_NAMES = tuple(f"joint{i}" for i in range(1, 8))
-TOOL_BODY = "hand"
+ASSETS = Path(__file__).parent / "assets"
+MODEL_PATH = ASSETS / "panda.xml"
+DEFAULT_ROBOT = "panda"
 TCP_SITE = "tcp"
+FLANGE_SITE = "flange"
 TABLE_GEOM = "table"
 IP_PREFIX = "ip_"
+DEFAULT_IPS = ("hand", "wrist", "forearm")
+FAILURE_TEXT = "lmjx_failure_"  # <custom><text name="lmjx_failure_NAME" data="J2=0.3,J4=-1.5"/>: a preset
+
+
+class RobotError(LmjxError):
+    """A robot description that does not meet lmjx's contract (docs/ROBOTS.md)."""
+
+    def __init__(self, path: str | Path, problems: list[str]) -> None:
+        self.problems = problems
+        super().__init__(
+            f"{path} is not an lmjx robot: {problems[0]}"
+            + (f" (and {len(problems) - 1} more: lmjx robot check {path})" if len(problems) > 1 else "")
+        )
+
+
+@dataclass(frozen=True)
+class RobotProfile:
+    """What lmjx knows of a robot beyond its MJCF."""
+
+    # Failure presets: name -> {joint number (1-based): lock angle [rad]}.  docs/ROBOTS.md
+    # and the README say how each was chosen.
+    presets: dict[str, dict[int, float]] = field(default_factory=dict)
+    # The "real" world's joint servo gains (Franka-like impedance); None: from the torque limits.
+    real_kp: tuple[float, ...] | None = None
+    real_kv: tuple[float, ...] | None = None
+    # The scenarios' table positions are scaled by this (the Panda's layouts at 1.0).  A
+    # user's robot: its `arm_span` over the Panda's.
+    task_scale: float = 1.0
+    description: str = ""
+
+
+PROFILES: dict[str, RobotProfile] = {
+    # Panda (README, "Failure cases"): case1 from `lmjx lock-search --joints J3,J5 --base
+    # J7=0.785398 --grid 7 --match 0.7294,0.9239`; case2 from `lmjx lock-search --joints J6,J7
+    # --grid 9`.
+    "panda": RobotProfile(
+        presets={"case1": {3: 2.8773, 5: 0.0, 7: math.pi / 4}, "case2": {6: 0.935, 7: -0.7193}},
+        real_kp=(600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0),
+        real_kv=(50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0),
+        task_scale=1.0,
+        description="Franka Emika Panda, 7 joints, Franka Hand (fingers welded open)",
+    ),
+    # UR5e (docs/ROBOTS.md): presets from lock searches like the Panda's: case2 from `lmjx
+    # lock-search --robot ur5e --joints J5,J6 --grid 9 --cell 0.04` (J5 = -6.2632 rad is 0.02
+    # rad from the wrist's straight pose, where the tool axis lies along the wrist 1 axis).
+    "ur5e": RobotProfile(
+        presets={"case2": {5: -6.2632, 6: 0.0}},
+        real_kp=(600.0, 600.0, 600.0, 250.0, 150.0, 50.0),
+        real_kv=(50.0, 50.0, 50.0, 30.0, 25.0, 15.0),
+        task_scale=1.0,
+        description="Universal Robots UR5e, 6 joints, open parallel-gripper stand-in",
+    ),
+}
+ROBOTS: dict[str, Path] = {"panda": MODEL_PATH, "ur5e": ASSETS / "ur5e.xml"}
 
 
 @dataclass(frozen=True, eq=False)
 class Robot:
-    """The Panda on its table, as every part of lmjx sees it."""
+    """An arm on its table, as every part of lmjx sees it."""
 
     path: Path
+    key: str  # the shipped name ("panda", "ur5e") or the MJCF's path
     name: str  # the MJCF's model name
     model_hash: str  # sha256 of the MJCF text
     mj: mujoco.MjModel
     arm: ArmModel
     joint_names: tuple[str, ...]
-    lower: np.ndarray  # (7,) position limits [rad]
+    lower: np.ndarray  # (nq,) position limits [rad]
     upper: np.ndarray
-    qd_max: np.ndarray  # (7,) velocity limits [rad/s]
-    qdd_max: np.ndarray  # (7,) acceleration limits [rad/s^2]
-    jerk_max: np.ndarray  # (7,) jerk limits [rad/s^3]
-    tau_max: np.ndarray  # (7,) torque limits [Nm]
-    friction: np.ndarray  # (3, 7) Gaz et al. friction parameters phi1, phi2, phi3
+    qd_max: np.ndarray  # (nq,) velocity limits [rad/s]
+    qdd_max: np.ndarray  # (nq,) acceleration limits [rad/s^2]
+    jerk_max: np.ndarray  # (nq,) jerk limits [rad/s^3] (inf where the model gives none)
+    tau_max: np.ndarray  # (nq,) torque limits [Nm]
+    friction: np.ndarray  # (3, nq) Gaz et al. friction parameters phi1, phi2, phi3 (zeros: none)
     inertials: Inertials
-    ready: np.ndarray  # (7,) Franka's ready pose
+    ready: np.ndarray  # (nq,) a pose to park in (the model's lmjx_ready, else zeros)
     site_names: tuple[str, ...]
+    profile: RobotProfile = field(default_factory=RobotProfile)
     interaction_points: dict[str, int] = field(default_factory=dict)  # name -> site index
     tcp_site: int = 0
+    flange_site: int = 0
 
     @property
     def nq(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def tool_body_name(self) -> str:
+        """The name of the body that carries the grasp point (the gripper or hand)."""
+        return self.mj.body(int(self.mj.site_bodyid[self.tcp_site])).name
+
+    @property
+    def default_ips(self) -> tuple[str, ...]:
+        """The interaction points maps use unless told otherwise: hand, wrist and forearm where
+        the model has all three (both shipped arms do), else every `ip_` site it has."""
+        if all(n in self.interaction_points for n in DEFAULT_IPS):
+            return DEFAULT_IPS
+        return tuple(self.interaction_points)
+
+    @property
+    def maps_dir(self) -> str:
+        """Where its maps go by default: maps/ for the Panda, maps/<name>/ for any other."""
+        if self.key == DEFAULT_ROBOT:
+            return "maps"
+        safe = "".join(c if c.isalnum() or c in "-._" else "_" for c in (self.key if self.key in ROBOTS else self.name))
+        return f"maps/{safe}"
 
     def site_index(self, name: str) -> int:
         return self.site_names.index(name)
@@ -151,7 +236,7 @@ def _arm_model(m: mujoco.MjModel) -> ArmModel:
         site_body=np.array(m.site_bodyid - 1, dtype=np.int32),
         site_pos=np.array(m.site_pos, dtype=np.float64),
         site_radius=np.array(m.site_size[:, 0], dtype=np.float64),
-        tool_body=int(m.body(TOOL_BODY).id - 1),
+        tool_body=int(m.site_bodyid[m.site(TCP_SITE).id] - 1),
         cap_body=cap_body,
         cap_a=cap_a,
         cap_b=cap_b,
@@ -165,19 +250,175 @@ def _arm_model(m: mujoco.MjModel) -> ArmModel:
     )
 
 
-@functools.lru_cache(maxsize=4)
-def load_robot(path: str | Path = MODEL_PATH) -> Robot:
-    """Load and cache the robot described by the MJCF at `path` (default: the Panda)."""
-    path = Path(path)
+def resolve_robot(name_or_path: str | Path | None = None) -> tuple[str, Path]:
+    """(key, MJCF path) of a shipped robot's name or of a path to an MJCF."""
+    text = str(name_or_path) if name_or_path is not None else DEFAULT_ROBOT
+    if text in ROBOTS:
+        return text, ROBOTS[text]
+    p = Path(text)
+    if p.suffix.lower() == ".xml" or p.exists():
+        if not p.is_file():
+            raise ConfigError(f"no robot description at {p}")
+        if p.resolve() in {v.resolve() for v in ROBOTS.values()}:
+            key = next(k for k, v in ROBOTS.items() if v.resolve() == p.resolve())
+            return key, ROBOTS[key]
+        return str(p), p
+    raise ConfigError(f"unknown robot '{text}'; the shipped robots are {', '.join(ROBOTS)}, or give an MJCF's path")
+
+
+def check_robot(path: str | Path) -> list[str]:
+    """Everything an MJCF lacks to be an lmjx robot (docs/ROBOTS.md), one sentence each; []
+    when it meets the contract."""
+    p = Path(path)
+    try:
+        m = mujoco.MjModel.from_xml_path(str(p))
+    except Exception as e:  # MuJoCo's own parse and compile errors
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        return [f"MuJoCo cannot load it: {first}"]
+    problems: list[str] = []
+    nq = m.njnt
+    if nq < 2:
+        problems.append(f"it has {nq} joint(s); an arm needs at least 2 hinge joints")
+    for j in range(m.njnt):
+        name = m.joint(j).name or f"joint {j}"
+        if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+            problems.append(f"joint '{name}' is not a hinge (lmjx arms have hinge joints only)")
+        if not m.jnt_limited[j]:
+            problems.append(f"joint '{name}' has no position limits (give it a range)")
+        if np.any(np.abs(m.jnt_pos[j]) > 1e-12):
+            problems.append(
+                f"joint '{name}' is off its body's origin (pos {m.jnt_pos[j].round(4).tolist()}): "
+                "place the body's frame on the joint axis"
+            )
+        has_force = m.jnt_actfrclimited[j] and m.jnt_actfrcrange[j][1] > 0
+        if not has_force and _numeric_or_none(m, "lmjx_tau_max") is None:
+            problems.append(f"joint '{name}' has no torque limit (actuatorfrcrange, or the numeric lmjx_tau_max)")
+    bodies_with_joint = {int(m.jnt_bodyid[j]) for j in range(m.njnt)}
+    if len(bodies_with_joint) < m.njnt:
+        problems.append("a body carries more than one joint (lmjx arms have one hinge per body)")
+    for name in ("lmjx_qd_max", "lmjx_qdd_max"):
+        v = _numeric_or_none(m, name)
+        kind = "velocity" if "qd_max" in name and "qdd" not in name else "acceleration"
+        if v is None:
+            problems.append(f'no {kind} limits: add <custom><numeric name="{name}" data="..."/> (one per joint)')
+        elif len(v) != nq or not np.all(v > 0):
+            problems.append(f"the numeric {name} must hold {nq} positive values, one per joint (it holds {len(v)})")
+    tau = _numeric_or_none(m, "lmjx_tau_max")
+    if tau is not None and (len(tau) != nq or not np.all(tau > 0)):
+        problems.append(f"the numeric lmjx_tau_max must hold {nq} positive values, one per joint")
+    moving = sorted(_moving_bodies(m))
+    collides = {int(m.geom_bodyid[g]) for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]}
+    for b in moving:
+        if m.body_mass[b] <= 0:
+            problems.append(f"body '{m.body(b).name}' has no mass (give it an <inertial>)")
+        if not _subtree_collides(m, b, collides):
+            problems.append(f"body '{m.body(b).name}' has no collision geometry")
+    for g in range(m.ngeom):
+        arm_collider = m.geom_bodyid[g] in moving and (m.geom_contype[g] or m.geom_conaffinity[g])
+        if arm_collider and m.geom_type[g] != mujoco.mjtGeom.mjGEOM_CAPSULE:
+            gname = m.geom(g).name or f"geom {g}"
+            problems.append(f"collision geom '{gname}' of the arm is not a capsule (lmjx checks capsules)")
+    try:
+        t = m.geom(TABLE_GEOM)
+        if t.type[0] != mujoco.mjtGeom.mjGEOM_BOX or m.geom_bodyid[t.id] != 0:
+            problems.append("the geom 'table' must be a box fixed to the world")
+        elif abs(float(t.pos[2] + t.size[2])) > 1e-9:
+            problems.append(f"the table's top must be at z = 0 (it is at {float(t.pos[2] + t.size[2]):g})")
+    except KeyError:
+        problems.append("no geom named 'table' (a box whose top is the task plane, z = 0)")
+    site_names = [m.site(i).name for i in range(m.nsite)]
+    for name, what in ((TCP_SITE, "the grasp point"), (FLANGE_SITE, "the centre of the tool flange")):
+        if name not in site_names:
+            problems.append(f"no site '{name}' ({what})")
+    if TCP_SITE in site_names:
+        q = m.site_quat[site_names.index(TCP_SITE)]
+        if not np.allclose(np.abs(q), [1, 0, 0, 0], atol=1e-9):
+            problems.append("the site 'tcp' must not be rotated in its body (the body's z is the approach axis)")
+        if m.site_bodyid[site_names.index(TCP_SITE)] not in moving:
+            problems.append("the site 'tcp' must sit on the arm")
+    if not [n for n in site_names if n.startswith(IP_PREFIX)]:
+        problems.append("no interaction-point sites ('ip_<name>', e.g. ip_hand, ip_wrist, ip_forearm)")
+    if m.nu != nq or any(m.actuator_trnid[a][0] != a for a in range(min(m.nu, nq))):
+        problems.append(f"it needs one position actuator per joint, in joint order ({m.nu} actuators for {nq} joints)")
+    return problems
+
+
+def _numeric_or_none(m: mujoco.MjModel, name: str) -> np.ndarray | None:
+    try:
+        return np.array(m.numeric(name).data, dtype=np.float64)
+    except KeyError:
+        return None
+
+
+def _moving_bodies(m: mujoco.MjModel) -> set[int]:
+    """Bodies moved by a joint (theirs or an ancestor's)."""
+    out = set()
+    for b in range(1, m.nbody):
+        a = b
+        while a > 0:
+            if m.body_jntnum[a] > 0:
+                out.add(b)
+                break
+            a = m.body_parentid[a]
+    return out
+
+
+def _subtree_collides(m: mujoco.MjModel, b: int, collides: set[int]) -> bool:
+    """Whether body b, or a body welded to it, has collision geometry."""
+    return any(c in collides for c in range(m.nbody) if m.body_weldid[c] == m.body_weldid[b])
+
+
+def arm_span(m: mujoco.MjModel, tcp_site: int) -> float:
+    """The length of the kinematic chain from the first moving body to the grasp point (the
+    sum of the body offsets along it): a measure of the arm's size."""
+    span = float(np.linalg.norm(m.site_pos[tcp_site]))
+    b = int(m.site_bodyid[tcp_site])
+    while b > 0 and m.body_parentid[b] > 0:
+        span += float(np.linalg.norm(m.body_pos[b]))
+        b = int(m.body_parentid[b])
+    return span
+
+
+@functools.lru_cache(maxsize=1)
+def _panda_span() -> float:
+    m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    return arm_span(m, m.site(TCP_SITE).id)
+
+
+def robots() -> dict[str, str]:
+    """The shipped robots: name -> description."""
+    return {k: PROFILES[k].description for k in ROBOTS}
+
+
+@functools.lru_cache(maxsize=8)
+def load_robot(name_or_path: str | Path | None = None) -> Robot:
+    """Load and cache a robot: a shipped one by name ("panda", the default; "ur5e") or any
+    MJCF that meets the contract by its path (RobotError lists what it lacks)."""
+    key, path = resolve_robot(name_or_path)
+    problems = check_robot(path)
+    if problems:
+        raise RobotError(path, problems)
     text = path.read_bytes()
     m = mujoco.MjModel.from_xml_path(str(path))
     names = tuple(m.joint(j).name for j in range(m.njnt))
-    if names != JOINT_NAMES:
-        raise ValueError(f"{path}: expected joints {JOINT_NAMES}, found {names}")
+    nq = len(names)
     site_names = tuple(m.site(s).name for s in range(m.nsite))
     ips = {n[len(IP_PREFIX) :]: i for i, n in enumerate(site_names) if n.startswith(IP_PREFIX)}
+    tau = _numeric_or_none(m, "lmjx_tau_max")
+    if tau is None:
+        tau = np.array(m.jnt_actfrcrange[:, 1], dtype=np.float64)
+    jerk = _numeric_or_none(m, "lmjx_jerk_max")
+    phis = [_numeric_or_none(m, f"lmjx_friction_phi{i}") for i in (1, 2, 3)]
+    friction = np.stack(phis) if all(x is not None and len(x) == nq for x in phis) else np.zeros((3, nq))
+    ready = _numeric_or_none(m, "lmjx_ready")
+    profile = PROFILES.get(key) or RobotProfile(
+        presets=_text_presets(m),
+        task_scale=round(arm_span(m, m.site(TCP_SITE).id) / _panda_span(), 3),
+        description=f"{path.name} (a user's robot)",
+    )
     return Robot(
         path=path,
+        key=key,
         name=ET.fromstring(text).get("model", ""),
         model_hash=hashlib.sha256(text).hexdigest(),
         mj=m,
@@ -187,12 +428,28 @@ def load_robot(path: str | Path = MODEL_PATH) -> Robot:
         upper=np.array(m.jnt_range[:, 1]),
         qd_max=_numeric(m, "lmjx_qd_max"),
         qdd_max=_numeric(m, "lmjx_qdd_max"),
-        jerk_max=_numeric(m, "lmjx_jerk_max"),
-        tau_max=_numeric(m, "lmjx_tau_max"),
-        friction=np.stack([_numeric(m, f"lmjx_friction_phi{i}") for i in (1, 2, 3)]),
-        ready=_numeric(m, "lmjx_ready"),
+        jerk_max=jerk if jerk is not None and len(jerk) == nq else np.full(nq, np.inf),
+        tau_max=tau,
+        friction=friction,
+        ready=ready if ready is not None and len(ready) == nq else np.zeros(nq),
         inertials=_inertials(m),
         site_names=site_names,
+        profile=profile,
         interaction_points=ips,
         tcp_site=site_names.index(TCP_SITE),
+        flange_site=site_names.index(FLANGE_SITE),
     )
+
+
+def _text_presets(m: mujoco.MjModel) -> dict[str, dict[int, float]]:
+    """Failure presets a user's MJCF declares: <text name="lmjx_failure_NAME" data="J2=0.3,..."/>."""
+    out = {}
+    for i in range(m.ntext):
+        t = m.text(i)
+        if t.name.startswith(FAILURE_TEXT):
+            locks = {}
+            for part in str(t.data).split(","):
+                j, _, v = part.strip().partition("=")
+                locks[int(j.strip().upper().lstrip("J"))] = float(v)
+            out[t.name[len(FAILURE_TEXT) :]] = locks
+    return out

@@ -6,7 +6,10 @@ region.
   1. the target and 3 movable obstacles that crowd it;
   2. a fixed tunnel partitioning the table: the target must pass through it;
   3. the target and 11 movable obstacles (many object-object interactions).
-`sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
+The layouts are the Panda's; `scenario(n, scale)` scales every position on the table (and the
+tunnel's length) about the robot's base by the robot's `task_scale`, so that the same three
+scenarios sit at the same place in the reach of an arm of another size (objects keep their
+sizes).  `sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
 uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of its nominal pose,
 keeping objects apart.  Nothing here simulates; `lmjx.scene` builds the MuJoCo models.
 """
@@ -14,7 +17,7 @@ keeping objects apart.  Nothing here simulates; `lmjx.scene` builds the MuJoCo m
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -151,10 +154,32 @@ def _scenario3() -> Scenario:
 SCENARIOS = {1: _scenario1, 2: _scenario2, 3: _scenario3}
 
 
-def scenario(number: int) -> Scenario:
+def scenario(number: int, scale: float = 1.0) -> Scenario:
+    """Scenario `number` (1, 2, 3) with its table positions scaled by `scale` about the robot's
+    base (a robot's `profile.task_scale`; 1 for the Panda)."""
     if number not in SCENARIOS:
         raise ConfigError(f"unknown scenario {number}; the scenarios are 1, 2 and 3")
-    return SCENARIOS[number]()
+    if not (math.isfinite(scale) and 0.2 <= scale <= 5.0):
+        raise ConfigError(f"scenario scale {scale:g} is out of range (0.2 to 5)")
+    sc = SCENARIOS[number]()
+    if scale == 1.0:
+        return sc
+
+    def moved(b: Box) -> Box:
+        return replace(b, x=b.x * scale, y=b.y * scale)
+
+    def stretched(b: Box) -> Box:  # a fixed wall keeps its thickness, its length scales
+        hx, hy, hz = b.half
+        half = (hx * scale, hy, hz) if hx >= hy else (hx, hy * scale, hz)
+        return replace(moved(b), half=half)
+
+    return replace(
+        sc,
+        target=moved(sc.target),
+        obstacles=tuple(moved(b) for b in sc.obstacles),
+        fixed=tuple(stretched(b) for b in sc.fixed),
+        goal_center=(sc.goal_center[0] * scale, sc.goal_center[1] * scale),
+    )
 
 
 def _corners(half: tuple[float, float, float], x: float, y: float, yaw: float, grow: float) -> np.ndarray:

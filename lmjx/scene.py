@@ -1,7 +1,7 @@
 """MuJoCo models of the robot with a scenario's objects, for the planner's simulator and for
 the simulated "real" world.
 
-`build_scene` adds the scenario's boxes to the robot's MJCF (one file: lmjx/assets/panda.xml)
+`build_scene` adds the scenario's boxes to the robot's MJCF (lmjx/assets/panda.xml, ur5e.xml or a user's)
 through MjSpec: movable boxes as free bodies, the tunnel as static boxes, the goal region as
 a marking without collisions.  `Physics` holds everything that may differ between the
 planner's simulator and the "real" world: friction, masses, the robot's collision radii,
@@ -39,9 +39,10 @@ class Physics:
     mass_scale: tuple[float, ...] = ()  # per movable object; () = all 1
     robot_radius_offset: float = 0.0  # added to every robot capsule radius [m]
     # Joint servos: tau = kp (q* - q) + kv (qd* - qd), clipped to +-servo_force; the
-    # trajectory gives q* and qd* (velocity feedforward, as Franka's joint controller).
-    servo_kp: tuple[float, ...] = (5000.0,) * 7  # [Nm/rad]
-    servo_kv: tuple[float, ...] = (300.0,) * 7  # [Nm s/rad]
+    # trajectory gives q* and qd* (velocity feedforward, as Franka's joint controller).  One
+    # value per joint, or a single value for every joint.
+    servo_kp: tuple[float, ...] = (5000.0,)  # [Nm/rad]
+    servo_kv: tuple[float, ...] = (300.0,)  # [Nm s/rad]
     servo_force: tuple[float, ...] | None = None  # torque limits; None: unlimited (near-exact playback)
     armature: float = 0.1  # reflected motor inertia per joint [kg m^2] (keeps stiff servos stable)
     # The planner's arm paths are free of table contact already (edges and transits are
@@ -56,8 +57,8 @@ class Scene:
     model: mujoco.MjModel
     scenario: Scenario
     physics: Physics
-    robot_qpos: np.ndarray = field(repr=False)  # (7,) qpos addresses of the robot joints
-    robot_dof: np.ndarray = field(repr=False)  # (7,) dof addresses
+    robot_qpos: np.ndarray = field(repr=False)  # (nq,) qpos addresses of the robot joints
+    robot_dof: np.ndarray = field(repr=False)  # (nq,) dof addresses
     obj_qpos: np.ndarray = field(repr=False)  # (n,) qpos address of each movable object's free joint
     obj_dof: np.ndarray = field(repr=False)
     obj_body: np.ndarray = field(repr=False)  # (n,) body ids
@@ -76,6 +77,15 @@ def quat_yaw(quat: np.ndarray) -> np.ndarray:
     """Yaw (rotation about z) of (..., 4) w, x, y, z quaternions."""
     w, x, y, z = np.moveaxis(np.asarray(quat), -1, 0)
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def per_joint(values: tuple[float, ...], nq: int, what: str) -> tuple[float, ...]:
+    """`values` for each of nq joints: one value per joint, or one value for all."""
+    if len(values) == 1:
+        return tuple(values) * nq
+    if len(values) != nq:
+        raise ValueError(f"{what}: {len(values)} values for a robot of {nq} joints")
+    return tuple(values)
 
 
 def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse_static: bool = False) -> Scene:
@@ -99,16 +109,19 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
             if physics.robot_radius_offset:
                 g.size = [g.size[0] + physics.robot_radius_offset, g.size[1], g.size[2]]
     unlimited = physics.servo_force is None
+    kp = per_joint(physics.servo_kp, robot.nq, "servo_kp")
+    kv = per_joint(physics.servo_kv, robot.nq, "servo_kv")
+    force = None if unlimited else per_joint(physics.servo_force, robot.nq, "servo_force")
     for i, a in enumerate(list(spec.actuators)):
-        a.gainprm[0] = physics.servo_kp[i]
-        a.biasprm[1] = -physics.servo_kp[i]
+        a.gainprm[0] = kp[i]
+        a.biasprm[1] = -kp[i]
         a.biasprm[2] = 0.0
         a.forcelimited = mujoco.mjtLimited.mjLIMITED_FALSE
         v = spec.add_actuator(name=f"velocity{i + 1}", target=a.target, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         v.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         v.biastype = mujoco.mjtBias.mjBIAS_AFFINE
-        v.gainprm[0] = physics.servo_kv[i]
-        v.biasprm[2] = -physics.servo_kv[i]
+        v.gainprm[0] = kv[i]
+        v.biasprm[2] = -kv[i]
         v.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
     for b in spec.bodies:
         if b.name in robot_bodies:
@@ -119,7 +132,7 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
             j.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
         else:
             j.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            j.actfrcrange = [-physics.servo_force[i], physics.servo_force[i]]
+            j.actfrcrange = [-force[i], force[i]]
     movable = sc.movable
     fs = physics.friction_scale or (1.0,) * len(movable)
     ms = physics.mass_scale or (1.0,) * len(movable)
@@ -191,8 +204,9 @@ def set_state(scene: Scene, data: mujoco.MjData, robot_q: np.ndarray, obj_qpos: 
     data.qpos[scene.robot_qpos] = robot_q
     for k, adr in enumerate(scene.obj_qpos):
         data.qpos[adr : adr + 7] = obj_qpos[k]
-    data.ctrl[:7] = robot_q
-    data.ctrl[7:] = 0.0
+    nq = len(scene.robot_qpos)
+    data.ctrl[:nq] = robot_q
+    data.ctrl[nq:] = 0.0
     mujoco.mj_forward(scene.model, data)
 
 

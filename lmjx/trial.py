@@ -54,7 +54,7 @@ def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu") -> 
     """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
     or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
     whole scene).  `backend` is resolved already (see `resolve_simulator`)."""
-    sc = scenario(scenario_number)
+    sc = scenario(scenario_number, robot.profile.task_scale)
     if backend == "gpu":
         from .simulate_gpu import GpuSimulator
 
@@ -77,7 +77,7 @@ def setup_trial(
 ) -> TrialSetup:
     """A trial ready to run.  `transits` may be shared by the trials of one map (it keeps
     what it learned about transits through the park pose)."""
-    sc = scenario(scenario_number)
+    sc = scenario(scenario_number, robot.profile.task_scale)
     assert map_file.reach is not None and map_file.edges is not None
     sim = simulator or (make_simulator(robot, scenario_number) if config.asm != "random" else None)
     planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config, transits)

@@ -24,6 +24,14 @@ def robot():
     return load_robot()
 
 
+@pytest.fixture(scope="session", params=["panda", "ur5e"])
+def arm(request):
+    """Each shipped robot in turn, for the kernel tests that must hold for any arm."""
+    from lmjx.robot import load_robot
+
+    return load_robot(request.param)
+
+
 def random_configs(robot, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return robot.lower + rng.random((n, robot.nq)) * (robot.upper - robot.lower)

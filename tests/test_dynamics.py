@@ -18,7 +18,7 @@ def _contact_free_states(robot, n, seed):
     m = robot.mj
     d = mujoco.MjData(m)
     rng = np.random.default_rng(seed)
-    q = random_configs(robot, 3 * n, seed)
+    q = random_configs(robot, 6 * n, seed)
     keep = []
     for i, qi in enumerate(q):
         d.qpos[:] = qi
@@ -33,7 +33,9 @@ def _contact_free_states(robot, n, seed):
     return q, qd, qdd
 
 
-def test_torques_match_mj_inverse_plus_friction(robot):
+def test_torques_match_mj_inverse_plus_friction(arm):
+    robot = arm
+    n = robot.nq
     q, qd, qdd = _contact_free_states(robot, 2000, seed=21)
     assert len(q) == 2000
 
@@ -43,9 +45,9 @@ def test_torques_match_mj_inverse_plus_friction(robot):
                 robot.arm.tree,
                 robot.inertials,
                 robot.friction,
-                [a[i] for i in range(7)],
-                [b[i] for i in range(7)],
-                [c[i] for i in range(7)],
+                [a[i] for i in range(n)],
+                [b[i] for i in range(n)],
+                [c[i] for i in range(n)],
             )
         )
 
@@ -61,13 +63,14 @@ def test_torques_match_mj_inverse_plus_friction(robot):
     assert worst <= REL_TOL
 
 
-def test_gravity_torques_at_rest(robot):
+def test_gravity_torques_at_rest(arm):
     """At rest, RNEA gives the gravity torques: mj_inverse with zero velocity and acceleration."""
+    robot = arm
     q = random_configs(robot, 50, seed=3)
     m = robot.mj
     d = mujoco.MjData(m)
     for qi in q:
-        tau = rnea(robot.arm.tree, robot.inertials, [float(x) for x in qi], [0.0] * 7, [0.0] * 7)
+        tau = rnea(robot.arm.tree, robot.inertials, [float(x) for x in qi], [0.0] * robot.nq, [0.0] * robot.nq)
         d.qpos[:] = qi
         d.qvel[:] = 0
         d.qacc[:] = 0

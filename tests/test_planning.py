@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -116,6 +117,22 @@ def test_batched_simulation_equals_one_by_one(robot, small_map):
     assert np.all(score(sc, robot, batch) < 1.0)  # nobody fell off the table
 
 
+GOLDEN = json.loads((Path(__file__).parent / "data" / "panda_golden.json").read_text())
+
+
+def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
+    """The small case-2 map (the arguments of tests/golden.py) holds what the code made
+    before lmjx took any robot: the same reach labels, the same edges and rejections."""
+    from golden import MAP_ARGS, map_figures
+
+    assert MAP_ARGS == ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1")
+    got, want = map_figures(str(small_map)), GOLDEN["map"]
+    for k in ("areas", "labels", "edges_valid", "edges_sampled", "rejected", "states"):
+        assert got[k] == want[k], k
+    for k in ("q_sum", "q_abs_sum"):
+        assert got[k] == pytest.approx(want[k], rel=1e-6), k
+
+
 @pytest.mark.parametrize("asm", ["random", "lazy", "greedy"])
 def test_trials_run_and_repeat(robot, small_map, asm):
     m = load_map(small_map)
@@ -124,6 +141,11 @@ def test_trials_run_and_repeat(robot, small_map, asm):
     b = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
     assert a.summary() | {"planning_s": 0} == b.summary() | {"planning_s": 0}
     assert 1 <= a.actions <= 3 and a.execution_s > 0
+    # the Panda plans as it did before lmjx took any robot (tests/golden.py)
+    want = GOLDEN["trials"][asm]
+    assert (a.success, a.actions, [s.edge for s in a.steps]) == (want["success"], want["actions"], want["edges"])
+    assert a.final_distance == pytest.approx(want["final_distance_m"], abs=1e-6)
+    assert a.execution_s == pytest.approx(want["execution_s"], abs=1e-6)
     sims = [s.simulated for s in a.steps]
     if asm == "random":
         assert sims == [0] * len(sims)

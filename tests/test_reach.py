@@ -109,6 +109,30 @@ def test_table1_relations(robot, table1):
     assert a["none"]["npm_pm"] >= a["none"]["pm"]
 
 
+def _readme_table1(robot_heading: str = "## Table I, reproduced") -> dict[tuple[str, str], float]:
+    """README's Table I: (failure, 'pm' | 'npm_pm') -> the lmjx area [m^2] it states."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index(robot_heading) :].split("\n## ", 1)[0]
+    out, failure = {}, None
+    for line in section.splitlines():
+        cols = [c.strip().strip("*") for c in line.strip().strip("|").split("|")]
+        if len(cols) != 6 or cols[1] not in ("PM", "NPM+PM"):
+            continue
+        failure = cols[0].split(" (")[0].replace(" ", "") or failure
+        out[(failure, "pm" if cols[1] == "PM" else "npm_pm")] = float(cols[3])
+    return out
+
+
+def test_table1_figures_are_the_readmes(robot, table1):
+    """Every area of README's Table I is what the code computes today (to its 3 decimals)."""
+    stated = _readme_table1()
+    assert len(stated) == 6
+    for (failure, kind), value in stated.items():
+        assert round(table1[failure].areas(True)[kind], 3) == value, (failure, kind)
+
+
 def test_default_map_solutions_verified_in_mujoco(robot, table1):
     """Every accepted solution of the default maps: no contact in C MuJoCo (in particular no
     robot-table penetration), locked joints exact, limits, target within 2 mm."""

@@ -1,0 +1,73 @@
+"""Figures of the Panda that must not change when lmjx changes how it represents robots: a
+small case-2 map's edges and the trials planned on it.
+
+`python tests/golden.py MAP OUT.json` writes them; tests/data/panda_golden.json was written
+this way by the code before lmjx took any robot (commit 732f4a2, where the Panda was the
+only arm), and tests/test_robots.py compares today's code with it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+
+import numpy as np
+
+MAP_ARGS = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1")  # build-map arguments
+TRIAL = {"scenario": 1, "seed": 3, "max_actions": 3, "greedy_candidates": 8, "lazy_tries": 4}
+
+
+def _digest(a: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
+
+
+def map_figures(path: str) -> dict:
+    from lmjx.mapfile import load_map
+
+    m = load_map(path)
+    r, e = m.reach, m.edges
+    return {
+        "areas": {k: round(float(v), 6) for k, v in r.areas(True).items()},
+        "labels": _digest(r.labels),
+        "edges_valid": int(e.n_edges),
+        "edges_sampled": int(m.edges_attrs["edges_sampled"]),
+        "rejected": {k[len("rejected_") :]: int(v) for k, v in m.edges_attrs.items() if k.startswith("rejected_")},
+        "states": len(e.q),
+        "q_sum": float(np.sum(np.asarray(e.q[...], np.float64))),
+        "q_abs_sum": float(np.sum(np.abs(np.asarray(e.q[...], np.float64)))),
+    }
+
+
+def trial_figures(path: str) -> dict:
+    from lmjx.mapfile import load_map
+    from lmjx.planner import PlannerConfig
+    from lmjx.robot import load_robot
+    from lmjx.trial import run_trial, setup_trial
+
+    robot = load_robot()
+    m = load_map(path)
+    out = {}
+    for asm in ("random", "lazy", "greedy"):
+        cfg = PlannerConfig(
+            asm=asm, max_actions=TRIAL["max_actions"], greedy_candidates=TRIAL["greedy_candidates"],
+            lazy_tries=TRIAL["lazy_tries"],
+        )  # fmt: skip
+        res = run_trial(setup_trial(robot, m, TRIAL["scenario"], cfg, seed=TRIAL["seed"]))
+        out[asm] = {
+            "success": bool(res.success),
+            "actions": int(res.actions),
+            "edges": [int(s.edge) for s in res.steps],
+            "final_distance_m": round(float(res.final_distance), 9),
+            "execution_s": round(float(res.execution_s), 6),
+        }
+    return out
+
+
+if __name__ == "__main__":
+    figures = {"map": map_figures(sys.argv[1])}
+    if "--map-only" not in sys.argv:
+        figures["trials"] = trial_figures(sys.argv[1])
+    with open(sys.argv[2], "w") as f:
+        json.dump(figures, f, indent=1)
+        f.write("\n")
