@@ -75,11 +75,13 @@ PROFILES: dict[str, RobotProfile] = {
         task_scale=1.0,
         description="Franka Emika Panda, 7 joints, Franka Hand (fingers welded open)",
     ),
-    # UR5e (docs/ROBOTS.md): presets from lock searches like the Panda's: case2 from `lmjx
-    # lock-search --robot ur5e --joints J5,J6 --grid 9 --cell 0.04` (J5 = -6.2632 rad is 0.02
-    # rad from the wrist's straight pose, where the tool axis lies along the wrist 1 axis).
+    # UR5e (docs/ROBOTS.md): presets from lock searches like the Panda's: case1 from `lmjx
+    # lock-search --robot ur5e --joints J4,J5 --grid 9 --cell 0.04 --match 0.7294,0.9239`
+    # (the lock closest to the paper's case-1 ratios); case2 from `lmjx lock-search --robot
+    # ur5e --joints J5,J6 --grid 9 --cell 0.04` (J5 = -6.2632 rad is 0.02 rad from the wrist's
+    # straight pose, where the tool axis lies along the wrist 1 axis).
     "ur5e": RobotProfile(
-        presets={"case2": {5: -6.2632, 6: 0.0}},
+        presets={"case1": {4: 4.6974, 5: 1.5658}, "case2": {5: -6.2632, 6: 0.0}},
         real_kp=(600.0, 600.0, 600.0, 250.0, 150.0, 50.0),
         real_kv=(50.0, 50.0, 50.0, 30.0, 25.0, 15.0),
         task_scale=1.0,
