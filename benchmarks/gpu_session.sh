@@ -113,18 +113,26 @@ for step in $steps; do
       # Issue 10: 5,000,000 edges on one GPU, compilation included; peak host memory.
       /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 --no-shard \
         --out "$WORK/maps/case2_5M.h5" --json > "$OUT/build5m_1gpu.json" 2> "$WORK/build5m.err"
-      grep -E "preflight|Elapsed|Maximum resident" "$WORK/build5m.err"; cat "$OUT/build5m_1gpu.json" ;;
+      grep -aE "preflight|Elapsed|Maximum resident" "$WORK/build5m.err"; cat "$OUT/build5m_1gpu.json" ;;
     shard5m)
       # The same on every local GPU: the same datasets, and the speed-up after compilation.
       /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 \
         --out "$WORK/case2_5M_all.h5" --json > "$OUT/build5m_all.json" 2> "$WORK/build5m_all.err"
-      grep -E "Elapsed|Maximum resident" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
+      grep -aE "Elapsed|Maximum resident" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
       timeout 200 python3 benchmarks/same_map.py "$WORK/maps/case2_5M.h5" "$WORK/case2_5M_all.h5" ;;
     decision)
       # Issue 10: one Greedy decision (GPU simulator, 1,024 candidates) on the 100k and the 5M map.
+      [ -f "$WORK/maps/case2.h5" ] || timeout 300 python3 -m lmjx.cli build-map --failure case2 \
+        --out "$WORK/maps/case2.h5" --json > /dev/null 2> "$WORK/build.err"
       for m in case2 case2_5M; do
         timeout 280 python3 -m lmjx.cli bench --sections planner --candidates 1024 --repeats 3 \
           --planner-map "$WORK/maps/$m.h5" --out "$OUT/decision_$m.json" 2>&1 | grep -iE "decision|map|error" | head -5
+      done ;;
+    urmaps)
+      # Issue 11: the UR5e's Table I on the GPU (compare with the CPU's in the README).
+      for f in none case1 case2; do
+        timeout 200 python3 -m lmjx.cli reach --robot ur5e --failure $f --json 2> /dev/null | \
+          python3 -c "import json, sys; d = json.load(sys.stdin); print('ur5e $f', d['area_m2'], d['seconds'], 's')"
       done ;;
     uratlas)
       # Issue 11: the UR5e atlas (675 maps, K = 3), compilation included (no cache).

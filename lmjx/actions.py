@@ -142,6 +142,8 @@ class TransitPlanner:
             starts = bundle.q_start[part].astype(np.float64)
             direct = self.segments(np.repeat(q_now[None], len(part), axis=0), starts)
             via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
+            ok = [j for j in range(len(part)) if direct[j] is not None or j in via]
+            bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j, e in enumerate(part):
                 transit = direct[j] if direct[j] is not None else via.get(j)
                 if transit is None:
@@ -174,7 +176,7 @@ class TransitPlanner:
 
 
 def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, via_park: bool) -> Action:
-    states = bundle.edge(edge)
+    states = bundle.edge(edge, ("q", "qd"))
     q_edge = states["q"].astype(np.float64)
     qd_edge = states["qd"].astype(np.float64)
     qd_transit = np.gradient(np.concatenate([q_now[None], transit]), CONTROL_DT, axis=0)[1:]

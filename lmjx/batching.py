@@ -169,8 +169,15 @@ class ChunkedKernel:
 
         return to_host(y)
 
-    def run(self, *arrays: np.ndarray, progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-        """Apply the kernel to every item of `arrays` (all of length n); numpy results."""
+    def run(
+        self,
+        *arrays: np.ndarray,
+        progress: Callable[[int], None] | None = None,
+        keep: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Apply the kernel to every item of `arrays` (all of length n); numpy results.
+        `keep`, if given, reduces each launch's results as they come back (e.g. to drop what
+        the caller does not need), so host memory holds only what it keeps."""
         if self._fn is None:
             self._build()
         assert self._fn is not None
@@ -182,7 +189,8 @@ class ChunkedKernel:
 
         def collect(p: tuple) -> None:
             res, count = p
-            outs.append({k: self._host(v)[:count] for k, v in zip(self._out, res, strict=True)})
+            got = {k: self._host(v)[:count] for k, v in zip(self._out, res, strict=True)}
+            outs.append(keep(got) if keep is not None else got)
             if progress is not None:
                 progress(count)
 
@@ -202,5 +210,6 @@ class ChunkedKernel:
             collect(pending)
         self.kernel_seconds += time.perf_counter() - t0
         if not outs:
-            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}
+            empty = {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}
+            return keep(empty) if keep is not None else empty
         return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}

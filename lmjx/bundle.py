@@ -152,10 +152,20 @@ class Bundle:
     def n_states(self) -> int:
         return len(self.q)
 
-    def edge(self, e: int) -> dict[str, np.ndarray]:
-        """The states of edge e."""
+    def edge(self, e: int, names: tuple[str, ...] = ("q", "qd", "p")) -> dict[str, np.ndarray]:
+        """The states of edge e (the fields `names` of q, qd, p)."""
         sl = slice(int(self.offset[e]), int(self.offset[e] + self.length[e]))
-        return {"q": np.asarray(self.q[sl]), "qd": np.asarray(self.qd[sl]), "p": np.asarray(self.p[sl])}
+        return {name: np.asarray(getattr(self, name)[sl]) for name in names}
+
+    def prefetch(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> None:
+        """Read the states of many edges at once from a lazily opened map (a no-op when the
+        states are in memory): `edge` then finds them decompressed."""
+        edges = np.asarray(edges, np.int64)
+        ranges = list(zip(self.offset[edges], self.offset[edges] + self.length[edges], strict=True))
+        for name in names:
+            data = getattr(self, name)
+            if hasattr(data, "prefetch"):
+                data.prefetch(ranges)
 
     def edges_over(self, iy: int, ix: int, nx: int) -> np.ndarray:
         """Ids of the edges whose point passes over reach cell (iy, ix) low enough to push there."""
@@ -338,23 +348,36 @@ def sample_edges(
     return solve_starts(draw_edges(reach, config, robot, start, stop), kernels, progress)
 
 
+TRAJECTORIES = ("q", "qd", "p")  # the rollout's per-state outputs, (edges, steps + 1, ...)
+
+
 def roll_out(
     samples: EdgeSamples, kernels: EdgeKernels, progress: Progress | None = None
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Roll out the sampled edges that have a start; returns their indices (sampling order)
-    and the kernel's per-edge results in that order."""
+    and the kernel's per-edge results in that order.  The trajectories (`TRAJECTORIES`) are
+    kept for the valid edges only (row j: the j-th valid edge in sampling order): the
+    invalid ones' are dropped as each launch comes back, so a chunk holds in memory about
+    a quarter of what the kernel returns."""
     idx = np.nonzero(samples.has_start)[0]
     # Longest first, so that each launch's loop stops with edges of about its own length.
     idx = idx[np.argsort(-samples.length[idx], kind="stable")]
+
+    def valid_only(got: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        ok = got["valid"].astype(bool)
+        return {k: v[ok] if k in TRAJECTORIES else v for k, v in got.items()}
+
     out = kernels.rollout.run(
         samples.which[idx],
         samples.q_start[idx],
         samples.twist[idx],
         samples.length[idx],
         progress=progress.update if progress else None,
+        keep=valid_only,
     )
     back = np.argsort(idx, kind="stable")  # to sampling order
-    return idx[back], {k: v[back] for k, v in out.items()}
+    back_valid = np.argsort(idx[out["valid"].astype(bool)], kind="stable")
+    return idx[back], {k: v[back_valid] if k in TRAJECTORIES else v[back] for k, v in out.items()}
 
 
 # ---------------------------------------------------------------------------- one chunk
@@ -436,8 +459,7 @@ def pack_chunk(
         rejected[code] = int(np.sum(out["reason"][~valid_local] == code))
     lens = (samples.length[keep] + 1).astype(np.int32)  # states per edge
     rows = np.concatenate([np.arange(k) for k in lens]) if len(keep) else np.zeros(0, np.int64)
-    e_of_row = np.repeat(np.arange(len(keep)), lens)
-    src = np.nonzero(valid_local)[0][e_of_row]
+    src = np.repeat(np.arange(len(keep)), lens)  # trajectories: valid edges only (roll_out)
     q_fixed = reach.failure.q_fixed(robot.nq).astype(np.float32)
     q = np.broadcast_to(q_fixed, (len(rows), robot.nq)).copy()
     qd = np.zeros((len(rows), robot.nq), np.float32)
@@ -486,22 +508,28 @@ def index_pairs(
     cell = reach.config.cell
     x0 = reach.xs[0] - cell / 2
     y0 = reach.ys[0] - cell / 2
-    edge_of_row = np.repeat(np.arange(len(length)), length)
-    pts, owners = [p], [edge_of_row]
-    if len(p):
-        last = np.zeros(len(p), bool)
+    edge_of_row = np.repeat(np.arange(len(length), dtype=np.int64), length)
+    n = len(p)
+    a = np.zeros(0, np.int64)
+    if n:
+        last = np.zeros(n, bool)
         last[np.cumsum(length) - 1] = True
         a = np.nonzero(~last)[0]
-        for s in range(1, substeps):
-            t = s / substeps
-            pts.append(p[a] * (1 - t) + p[a + 1] * t)
-            owners.append(edge_of_row[a])
-    pts_all = np.concatenate(pts)
-    own = np.concatenate(owners)
-    low = pts_all[:, 2] - edge_radius[own] <= height
-    ix = np.floor((pts_all[:, 0] - x0) / cell).astype(np.int64)
-    iy = np.floor((pts_all[:, 1] - y0) / cell).astype(np.int64)
-    inside = low & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    # the states, then the segments' inner points; only the low ones are kept
+    m = n + (substeps - 1) * len(a)
+    pts = np.empty((m, 3), p.dtype)
+    own = np.empty(m, np.int64)
+    pts[:n], own[:n] = p, edge_of_row
+    for s in range(1, substeps):
+        t = s / substeps
+        lo = n + (s - 1) * len(a)
+        pts[lo : lo + len(a)] = p[a] * (1 - t) + p[a + 1] * t
+        own[lo : lo + len(a)] = edge_of_row[a]
+    low = np.nonzero(pts[:, 2] - edge_radius[own] <= height)[0]
+    pts, own = pts[low], own[low]
+    ix = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
+    iy = np.floor((pts[:, 1] - y0) / cell).astype(np.int64)
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
     width = max(1, len(length))
     keys = np.unique((iy[inside] * nx + ix[inside]) * width + own[inside])
     return (keys // width).astype(np.int32), (keys % width).astype(np.int32)

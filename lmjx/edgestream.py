@@ -131,6 +131,11 @@ def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
     )
 
 
+def packer_threads() -> int:
+    """Threads packing computed chunks: a quarter of the host's cores, 1 to 4."""
+    return max(1, min(4, (os.cpu_count() or 1) // 4))
+
+
 def partial_path(out: str | Path) -> Path:
     out = Path(out)
     return out.with_name(out.name + ".partial")
@@ -301,10 +306,13 @@ def build_map(
 
 
 class _MapWriter:
-    """Process 0's second thread: packs each computed chunk, saves it to the partial folder
-    (atomically), and appends it, in edge order, to the map being written there (saved
-    chunks of an earlier run are read back in their turn).  At the end: the spatial index,
-    then the map renamed to `out` and the partial folder removed."""
+    """Process 0's map writing, beside the accelerators: `packers` threads pack computed
+    chunks and save them to the partial folder (atomically), several at once (numpy and
+    zlib release the interpreter lock, and on a GPU this host work, not the rollouts, sets
+    the pace); one thread appends them, in edge order, to the map being written there
+    (saved chunks of an earlier run are read back in their turn).  At the end: the spatial
+    index, then the map renamed to `out` and the partial folder removed.  At most
+    2 x `packers` computed chunks are held at a time."""
 
     def __init__(
         self,
@@ -322,26 +330,41 @@ class _MapWriter:
         self.folder, self.reach, self.config, self.robot, self.n = folder, reach, config, robot, n
         self.ranges = sorted(done + todo)
         self.saved = set(done)
-        self.queue: queue.Queue = queue.Queue(maxsize=1)  # one computed chunk waits at most
+        self.packers = packer_threads()
+        self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
+        self.queue: queue.Queue = queue.Queue(maxsize=self.packers)  # packed or being packed, in order
         self.error: BaseException | None = None
         self.tmp = folder / "map.h5.tmp"
         self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
         self.totals = {"counts": np.zeros(reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()), np.int64),
                        "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
-        self.t_write = 0.0
+        self.t_write = self.t_pack = self.t_wait = 0.0
         self.thread = threading.Thread(target=self._run, name="lmjx-map-writer", daemon=True)
         self.thread.start()
 
     def put(self, samples, idx, rolled) -> None:
+        """Hand over a computed chunk (blocks while 2 x packers chunks are in hand)."""
         import queue
 
+        t0 = time.perf_counter()
+        job = None
         while self.thread.is_alive():
             try:
-                self.queue.put((samples, idx, rolled), timeout=0.5)
+                if job is None:
+                    job = self.pool.submit(self._pack, samples, idx, rolled)
+                self.queue.put(job, timeout=0.5)
+                self.t_wait += time.perf_counter() - t0
                 return
             except queue.Full:
                 continue
         raise self.error or RuntimeError("the map writer stopped")
+
+    def _pack(self, samples, idx, rolled) -> EdgeChunk:
+        t0 = time.perf_counter()
+        chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
+        _save(self.folder, chunk)
+        self.t_pack += time.perf_counter() - t0  # summed over the packers: CPU seconds
+        return chunk
 
     def _run(self) -> None:
         try:
@@ -349,12 +372,7 @@ class _MapWriter:
             write_head(self.file, self.robot, self.reach, with_edges=True)
             self.w = EdgeWriter(self.file, self.config, self.reach, self.robot.nq)
             for a, b in self.ranges:
-                if (a, b) in self.saved:
-                    chunk = _load(self.folder, a, b)
-                else:
-                    samples, idx, rolled = self.queue.get()
-                    chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
-                    _save(self.folder, chunk)
+                chunk = _load(self.folder, a, b) if (a, b) in self.saved else self.queue.get().result()
                 t0 = time.perf_counter()
                 self._append(chunk)
                 self.t_write += time.perf_counter() - t0
@@ -376,6 +394,7 @@ class _MapWriter:
 
     def finish(self, out: Path, kernels: EdgeKernels, edge_seconds: float, device: str) -> dict:
         self.thread.join()
+        self.pool.shutdown()
         if self.error is not None:
             raise self.error
         t0 = time.perf_counter()
@@ -413,6 +432,9 @@ class _MapWriter:
             "rollout_seconds": round(kernels.rollout.kernel_seconds, 4),
             "compile_seconds": round(kernels.compile_seconds, 4),
             "write_seconds": round(self.t_write, 4),
+            "pack_seconds": round(self.t_pack, 4),
+            "packers": self.packers,
+            "wait_seconds": round(self.t_wait, 4),
             "finish_seconds": round(time.perf_counter() - t0, 4),
             "edge_steps_per_s": round(steps / max(kernels.rollout.kernel_seconds, 1e-9), 1),
             **sizes,

@@ -22,6 +22,7 @@ from .bundle import Bundle, BundleConfig
 from .errors import MapFileError
 from .failure import Failure
 from .fileio import atomic_path
+from .lazystates import StateReader
 from .reach import ReachConfig, ReachResult
 from .robot import ROBOTS, Robot, load_robot
 
@@ -341,6 +342,11 @@ class MapFile:
     robot: Robot | None = dataclasses.field(default=None, repr=False)  # the robot it was built for
 
     def close(self) -> None:
+        if self.edges is not None:
+            for name in ("q", "qd", "p"):
+                data = getattr(self.edges, name)
+                if isinstance(data, StateReader):
+                    data.close()
         if self.file is not None:
             self.file.close()
             self.file = None
@@ -431,7 +437,7 @@ def load_map(
             if keep_open:  # the with block must not close it: reopen the handle it holds
                 f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
                 g = f["edges"]
-                edges.q, edges.qd, edges.p = g["q"], g["qd"], g["p"]
+                edges.q, edges.qd, edges.p = (StateReader(g[k]) for k in ("q", "qd", "p"))
     except MapFileError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:

@@ -49,7 +49,7 @@ def test_validation_errors(small_map, tmp_path):
         load_map(trunc)
     for attr, value, match in (
         ("schema_version", 99, "schema version 99"),
-        ("robot_model_hash", "0" * 64, "another robot model"),
+        ("robot_model_hash", "0" * 64, "another version of the robot .panda."),
         ("schema", "something-else", "not an lmjx map"),
     ):
         bad = tmp_path / f"bad_{attr}.h5"

@@ -1,0 +1,53 @@
+"""The lazy state reader (lmjx/lazystates.py) against h5py reading the same datasets."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from lmjx.lazystates import StateReader
+from lmjx.mapfile import STATE_ROWS, _compress_rows
+
+
+@pytest.fixture(scope="module")
+def states_file(tmp_path_factory):
+    """Three datasets of the same rows: written as lmjx writes maps (raw chunks through its
+    own shuffle + deflate), by h5py's filters with another chunk height, and with LZF."""
+    rng = np.random.default_rng(0)
+    n = 2 * STATE_ROWS + 5123  # the last chunk partly filled
+    data = rng.normal(size=(n, 7)).astype(np.float32)
+    path = tmp_path_factory.mktemp("lazy") / "states.h5"
+    with h5py.File(path, "w") as f:
+        ds = f.create_dataset("lmjx", shape=(n, 7), dtype=np.float32, chunks=(STATE_ROWS, 7),
+                              compression="gzip", compression_opts=4, shuffle=True)  # fmt: skip
+        for a in range(0, n, STATE_ROWS):
+            ds.id.write_direct_chunk((a, 0), _compress_rows(data[a : a + STATE_ROWS], 7), 0)
+        f.create_dataset("h5py", data=data, chunks=(1000, 7), compression="gzip", shuffle=True)
+        f.create_dataset("lzf", data=data, chunks=(1000, 7), compression="lzf")
+    return path, data
+
+
+@pytest.mark.parametrize("name", ["lmjx", "h5py", "lzf"])
+def test_rows_equal_h5py_and_the_written_data(states_file, name):
+    path, data = states_file
+    rng = np.random.default_rng(1)
+    with h5py.File(path, "r") as f:
+        ds = f[name]
+        r = StateReader(ds, cache_bytes=2 * 2**20)  # small: evictions happen
+        assert r.fast == (name != "lzf")
+        assert len(r) == len(data) and r.shape == data.shape
+        starts = rng.integers(0, len(data) - 1, 300)
+        lens = rng.integers(1, 120, 300)
+        ranges = [(int(a), int(min(a + k, len(data)))) for a, k in zip(starts, lens, strict=True)]
+        ranges += [(0, 1), (STATE_ROWS - 3, STATE_ROWS + 3), (len(data) - 7, len(data))]  # chunk edges, the end
+        r.prefetch(ranges[:100])
+        for a, b in ranges:
+            got = r[a:b]
+            assert got.dtype == np.float32 and got.shape == (b - a, 7)
+            np.testing.assert_array_equal(got, ds[a:b])
+            np.testing.assert_array_equal(got, data[a:b])
+        assert r.held <= r.cache_bytes or len(r.cache) == 1
+        np.testing.assert_array_equal(r[5:5], np.zeros((0, 7), np.float32))
+        np.testing.assert_array_equal(r[: len(data)], data)  # a long read goes through h5py
+        r.close()
