@@ -137,7 +137,15 @@ class ChunkedKernel:
             names[:] = res._fields
             return tuple(res)
 
-        plain = jax.jit(flat)
+        if self.mesh is not None:
+            # Each device runs the one-device program on its own rows (shard_map), rather
+            # than leaving the split to XLA's partitioner, which may keep a batched while
+            # loop's carry whole and compute every row on every device.
+            from .sharding import per_device
+
+            plain = jax.jit(per_device(flat, self.mesh, len(self.shared), len(self.inputs)))
+        else:
+            plain = jax.jit(flat)
         # Tracing these kernels takes seconds; a traced program saved by an earlier run (a JAX
         # export) is loaded instead, and XLA's persistent cache then spares the compilation.
         fn = plain if self.sharded else exported(self.key, plain, [*self.shared, *dummy], names)
@@ -173,11 +181,13 @@ class ChunkedKernel:
         self,
         *arrays: np.ndarray,
         progress: Callable[[int], None] | None = None,
-        keep: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
+        mask_by: str | None = None,
+        masked: tuple[str, ...] = (),
     ) -> dict[str, np.ndarray]:
         """Apply the kernel to every item of `arrays` (all of length n); numpy results.
-        `keep`, if given, reduces each launch's results as they come back (e.g. to drop what
-        the caller does not need), so host memory holds only what it keeps."""
+        With `mask_by`, the outputs named in `masked` keep only the rows where output
+        `mask_by` is true, selected as each output of each launch comes back (one full
+        output on the host at a time), so host memory holds only what is kept."""
         if self._fn is None:
             self._build()
         assert self._fn is not None
@@ -187,10 +197,20 @@ class ChunkedKernel:
         outs: list[dict[str, np.ndarray]] = []
         pending: tuple | None = None  # the call in flight: the device works while the host prepares the next
 
+        names = list(self._out)
+        order = sorted(range(len(names)), key=lambda i: names[i] in masked)  # the mask first
+
         def collect(p: tuple) -> None:
-            res, count = p
-            got = {k: self._host(v)[:count] for k, v in zip(self._out, res, strict=True)}
-            outs.append(keep(got) if keep is not None else got)
+            res, count = p  # res: a list, emptied as its outputs come back
+            got: dict[str, np.ndarray] = {}
+            for i in order:
+                v, res[i] = res[i], None
+                host = self._host(v)[:count]
+                del v  # the device array and its host copy go as soon as the rows are taken
+                if names[i] in masked:
+                    host = host[got[mask_by].astype(bool)]
+                got[names[i]] = host
+            outs.append({k: got[k] for k in names})
             if progress is not None:
                 progress(count)
 
@@ -202,14 +222,14 @@ class ChunkedKernel:
                 if stop - start < c:
                     part = np.concatenate([part, np.repeat(part[-1:], c - (stop - start), axis=0)], axis=0)
                 parts.append(self._put(part))
-            res = self._fn(*self.shared, *parts)  # asynchronous dispatch
+            res = list(self._fn(*self.shared, *parts))  # asynchronous dispatch
             if pending is not None:
                 collect(pending)
             pending = (res, stop - start)
+            del res, parts
         if pending is not None:
             collect(pending)
         self.kernel_seconds += time.perf_counter() - t0
         if not outs:
-            empty = {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}
-            return keep(empty) if keep is not None else empty
+            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}
         return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}

@@ -363,21 +363,33 @@ def roll_out(
     # Longest first, so that each launch's loop stops with edges of about its own length.
     idx = idx[np.argsort(-samples.length[idx], kind="stable")]
 
-    def valid_only(got: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        ok = got["valid"].astype(bool)
-        return {k: v[ok] if k in TRAJECTORIES else v for k, v in got.items()}
-
     out = kernels.rollout.run(
         samples.which[idx],
         samples.q_start[idx],
         samples.twist[idx],
         samples.length[idx],
         progress=progress.update if progress else None,
-        keep=valid_only,
+        mask_by="valid",
+        masked=TRAJECTORIES,
     )
     back = np.argsort(idx, kind="stable")  # to sampling order
     back_valid = np.argsort(idx[out["valid"].astype(bool)], kind="stable")
     return idx[back], {k: v[back_valid] if k in TRAJECTORIES else v[back] for k, v in out.items()}
+
+
+def split_rolled(
+    samples: EdgeSamples, idx: np.ndarray, rolled: dict[str, np.ndarray], a: int, b: int
+) -> tuple[EdgeSamples, np.ndarray, dict[str, np.ndarray]]:
+    """The part of a rolled-out chunk (`roll_out`'s results) that covers sampled edges
+    [a, b): what `pack_chunk` would have been given had [a, b) been a chunk of its own."""
+    lo, hi = a - samples.start, b - samples.start
+    sub = EdgeSamples(a, samples.sites, *(getattr(samples, f)[lo:hi] for f in
+                      ("cell", "which", "twist", "length", "has_start", "q_start")))  # fmt: skip
+    i0, i1 = np.searchsorted(idx, [lo, hi])  # idx is in sampling order
+    valid = rolled["valid"].astype(bool)
+    v0, v1 = int(valid[:i0].sum()), int(valid[:i1].sum())  # trajectories: valid edges only
+    part = {k: v[v0:v1] if k in TRAJECTORIES else v[i0:i1] for k, v in rolled.items()}
+    return sub, idx[i0:i1] - lo, part
 
 
 # ---------------------------------------------------------------------------- one chunk

@@ -55,6 +55,7 @@ from .bundle import (
     reasons,
     roll_out,
     solve_starts,
+    split_rolled,
 )
 from .errors import ConfigError, OutputPathError
 from .failure import Failure
@@ -129,6 +130,16 @@ def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
         devices,
         basis,
     )
+
+
+# Sampled edges packed (and saved to the partial folder) at a time; not part of the result
+# (LMJX_PACK_EDGES overrides it: the tests use small units).
+PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
+
+
+def chunk_ranges_of(a: int, b: int, size: int) -> list[tuple[int, int]]:
+    """[a, b) cut into consecutive ranges of at most `size`."""
+    return [(x, min(x + size, b)) for x in range(a, b, size)]
 
 
 def packer_threads() -> int:
@@ -328,11 +339,14 @@ class _MapWriter:
         import threading
 
         self.folder, self.reach, self.config, self.robot, self.n = folder, reach, config, robot, n
-        self.ranges = sorted(done + todo)
+        units = [u for a, b in todo for u in chunk_ranges_of(a, b, PACK_EDGES)]
+        self.ranges = sorted(done + units)
         self.saved = set(done)
         self.packers = packer_threads()
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
-        self.queue: queue.Queue = queue.Queue(maxsize=self.packers)  # packed or being packed, in order
+        # packed or being packed, in order: a computed chunk's units and a few more
+        most = max((b - a for a, b in todo), default=1)
+        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + self.packers)
         self.error: BaseException | None = None
         self.tmp = folder / "map.h5.tmp"
         self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
@@ -343,21 +357,23 @@ class _MapWriter:
         self.thread.start()
 
     def put(self, samples, idx, rolled) -> None:
-        """Hand over a computed chunk (blocks while 2 x packers chunks are in hand)."""
+        """Hand over a computed chunk, packed in units of `PACK_EDGES` sampled edges (blocks
+        while the queue is full: a chunk's units and `packers` more)."""
         import queue
 
         t0 = time.perf_counter()
-        job = None
-        while self.thread.is_alive():
-            try:
-                if job is None:
-                    job = self.pool.submit(self._pack, samples, idx, rolled)
-                self.queue.put(job, timeout=0.5)
-                self.t_wait += time.perf_counter() - t0
-                return
-            except queue.Full:
-                continue
-        raise self.error or RuntimeError("the map writer stopped")
+        n = len(samples.which)
+        for a, b in chunk_ranges_of(samples.start, samples.start + n, PACK_EDGES):
+            job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
+            while True:
+                if not self.thread.is_alive():
+                    raise self.error or RuntimeError("the map writer stopped")
+                try:
+                    self.queue.put(job, timeout=0.5)
+                    break
+                except queue.Full:
+                    continue
+        self.t_wait += time.perf_counter() - t0
 
     def _pack(self, samples, idx, rolled) -> EdgeChunk:
         t0 = time.perf_counter()

@@ -52,6 +52,20 @@ def replicated(m: Mesh) -> NamedSharding:
     return NamedSharding(m, PartitionSpec())
 
 
+def per_device(fn, m: Mesh, n_replicated: int, n_batched: int):
+    """`fn(*replicated, *batched)` run by every device on its own rows of the batched
+    arguments (`shard_map`); its outputs are split along axis 0 like its batched inputs."""
+    specs = (PartitionSpec(),) * n_replicated + (PartitionSpec(AXIS),) * n_batched
+    if hasattr(jax, "shard_map"):
+        try:
+            return jax.shard_map(fn, mesh=m, in_specs=specs, out_specs=PartitionSpec(AXIS), check_vma=False)
+        except TypeError:  # a JAX whose shard_map still takes check_rep
+            return jax.shard_map(fn, mesh=m, in_specs=specs, out_specs=PartitionSpec(AXIS), check_rep=False)
+    from jax.experimental.shard_map import shard_map
+
+    return shard_map(fn, mesh=m, in_specs=specs, out_specs=PartitionSpec(AXIS), check_rep=False)
+
+
 def put_batch(x: np.ndarray, m: Mesh) -> jax.Array:
     """A global array split along axis 0 over the mesh; each process supplies its own
     devices' rows from its (identical) host copy."""

@@ -63,7 +63,8 @@ def streamed(tmp_path_factory):
 
 def test_chunk_size_and_memory_do_not_change_the_datasets(robot, streamed, tmp_path):
     other = tmp_path / "b.h5"
-    _, err = _run(["build-map", *SMALL, "--chunk", "1100", "--out", str(other)])
+    # computed in chunks of 1100, packed in units of 300 (lmjx.edgestream.PACK_EDGES)
+    _, err = _run(["build-map", *SMALL, "--chunk", "1100", "--out", str(other)], env={"LMJX_PACK_EDGES": "300"})
     assert "preflight:" in err
     assert same_datasets(streamed, other) == []
     # the in-memory bundle (lmjx.bundle.build_bundle, in chunks of 250) writes the same datasets
