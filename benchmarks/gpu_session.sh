@@ -114,6 +114,12 @@ for step in $steps; do
       /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 --no-shard \
         --out "$WORK/maps/case2_5M.h5" --json > "$OUT/build5m_1gpu.json" 2> "$WORK/build5m.err"
       grep -aE "preflight|Elapsed|Maximum resident" "$WORK/build5m.err"; cat "$OUT/build5m_1gpu.json" ;;
+    profile)
+      # Where a streamed build's time goes (1,000,000 edges, one GPU, warm cache).
+      /usr/bin/time -v timeout 300 python3 -m lmjx.cli build-map --failure case2 --edges 1000000 --no-shard \
+        --out "$WORK/case2_1M.h5" --json > "$OUT/build1m.json" 2> "$WORK/build1m.err"
+      grep -aE "Elapsed|Maximum resident" "$WORK/build1m.err"
+      python3 -c "import json; e = json.load(open('$OUT/build1m.json'))['edges']; print({k: e[k] for k in e if 'second' in k or k in ('rollout_timing', 'packers')})" ;;
     shard5m)
       # The same on every local GPU: the same datasets, and the speed-up after compilation.
       /usr/bin/time -v timeout 400 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 \

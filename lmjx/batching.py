@@ -118,6 +118,9 @@ class ChunkedKernel:
         self.chunk = chunk
         self.compile_seconds = 0.0
         self.kernel_seconds = 0.0  # time in kernel calls and transfers, compilation excluded
+        # where run()'s time goes when results come back: waiting for the device, copying to
+        # the host, selecting rows (the rest: preparing and dispatching launches)
+        self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0}
         self._fn: Callable | None = None
         self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
 
@@ -205,11 +208,18 @@ class ChunkedKernel:
             got: dict[str, np.ndarray] = {}
             for i in order:
                 v, res[i] = res[i], None
+                t0 = time.perf_counter()
+                v.block_until_ready()
+                t1 = time.perf_counter()
                 host = self._host(v)[:count]
                 del v  # the device array and its host copy go as soon as the rows are taken
+                t2 = time.perf_counter()
                 if names[i] in masked:
                     host = host[got[mask_by].astype(bool)]
                 got[names[i]] = host
+                self.timing["device_wait"] += t1 - t0
+                self.timing["to_host"] += t2 - t1
+                self.timing["mask"] += time.perf_counter() - t2
             outs.append({k: got[k] for k in names})
             if progress is not None:
                 progress(count)
