@@ -91,7 +91,7 @@ def test_masked_program_locks_exactly_and_agrees_statistically(robot):
 def test_entries_count_and_angles(robot):
     cfg = AtlasConfig(angles=3)
     joints, angles = entries(robot, cfg)
-    assert len(joints) == expected_maps((2, 3), 3) == 21 * 9 + 35 * 27 == 1134
+    assert len(joints) == expected_maps((2, 3), 3, robot.nq) == 21 * 9 + 35 * 27 == 1134
     table = lock_angles(robot, 3, 0)
     width = (robot.upper - robot.lower) / 3
     for k in range(3):  # one angle in each third of every joint's range

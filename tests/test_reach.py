@@ -109,19 +109,20 @@ def test_table1_relations(robot, table1):
     assert a["none"]["npm_pm"] >= a["none"]["pm"]
 
 
-def _readme_table1(robot_heading: str = "## Table I, reproduced") -> dict[tuple[str, str], float]:
-    """README's Table I: (failure, 'pm' | 'npm_pm') -> the lmjx area [m^2] it states."""
+def _readme_table1(heading: str = "## Table I, reproduced", column: int = 3) -> dict[tuple[str, str], float]:
+    """A Table I of the README (the one under `heading`): (failure, 'pm' | 'npm_pm') -> the
+    area [m^2] its `column` states."""
     from pathlib import Path
 
     text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = text[text.index(robot_heading) :].split("\n## ", 1)[0]
+    section = text[text.index(heading) + len(heading) :].split("\n## ", 1)[0].split("\n### ", 1)[0]
     out, failure = {}, None
     for line in section.splitlines():
         cols = [c.strip().strip("*") for c in line.strip().strip("|").split("|")]
         if len(cols) != 6 or cols[1] not in ("PM", "NPM+PM"):
             continue
         failure = cols[0].split(" (")[0].replace(" ", "") or failure
-        out[(failure, "pm" if cols[1] == "PM" else "npm_pm")] = float(cols[3])
+        out[(failure, "pm" if cols[1] == "PM" else "npm_pm")] = float(cols[column])
     return out
 
 
@@ -131,6 +132,9 @@ def test_table1_figures_are_the_readmes(robot, table1):
     assert len(stated) == 6
     for (failure, kind), value in stated.items():
         assert round(table1[failure].areas(True)[kind], 3) == value, (failure, kind)
+    # the UR5e's table beside it repeats the Panda's figures
+    beside = _readme_table1("### The same table for the UR5e", column=2)
+    assert beside == {k: v for k, v in stated.items()}
 
 
 def test_default_map_solutions_verified_in_mujoco(robot, table1):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lmjx.atlas import AtlasConfig, entries, expected_maps
-from lmjx.errors import ConfigError, MapFileError
+from lmjx.errors import ConfigError, FailureSpecError, MapFileError
 from lmjx.failure import parse_failure
 from lmjx.robot import ROBOTS, RobotError, check_robot, load_robot, resolve_robot
 from lmjx.scenarios import scenario
@@ -109,7 +109,7 @@ def test_presets_live_with_each_robot():
         f = parse_failure(name, ur)
         assert f.nq == 6 and f.locked and all(1 <= j <= 6 for j in f.locked_joints)
         assert f.locked != parse_failure(name, panda).locked
-    with pytest.raises(ConfigError, match=r"J7 does not exist; joints are J1\.\.J6"):
+    with pytest.raises(FailureSpecError, match=r"J7 does not exist; joints are J1\.\.J6"):
         parse_failure("J7=0.1", ur)
     assert resolve_robot(None) == ("panda", ROBOTS["panda"])
     assert resolve_robot(str(UR5E))[0] == "ur5e"  # a shipped file by its path is that robot
