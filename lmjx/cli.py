@@ -1015,6 +1015,9 @@ def _on_sigint(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from .hostmem import return_large_buffers
+
+    return_large_buffers()
     parser = build_parser()
     args = parser.parse_args(argv)
     import signal
