@@ -15,6 +15,7 @@ import math
 import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -556,14 +557,10 @@ def cmd_build_map(args: argparse.Namespace) -> int:
             say=lambda line: print(line, file=sys.stderr),
         )  # fmt: skip
     except KeyboardInterrupt:
-        print(
+        _leave_interrupted(
             f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
-            f"{partial_path(out)}: rerun the same command to continue",
-            file=sys.stderr,
+            f"{partial_path(out)}: rerun the same command to continue"
         )
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(EXIT_INTERRUPTED)
     if not lead:
         return 0
     from .mapfile import load_map
@@ -854,13 +851,9 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     try:
         st = build_atlas(robot, config, out, progress=True, sharded=not args.no_shard)
     except KeyboardInterrupt:
-        print(
-            f"lmjx atlas: interrupted; finished groups are kept in {out}.partial: rerun the same command to continue",
-            file=sys.stderr,
+        _leave_interrupted(
+            f"lmjx atlas: interrupted; finished groups are kept in {out}.partial: rerun the same command to continue"
         )
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(EXIT_INTERRUPTED)
     if not lead:
         return 0
     if args.summary:
@@ -997,6 +990,16 @@ def threading_main() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
+def _leave_interrupted(message: str) -> NoReturn:
+    """Say what an interrupt left behind, then leave at once: XLA's worker threads may still
+    be running the interrupted kernel, and tearing the interpreter down under them can crash.
+    Output files are written atomically, so there is nothing left to clean up."""
+    print(message, file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(EXIT_INTERRUPTED)
+
+
 def _on_sigint(signum: int, frame: object) -> None:
     """Ctrl-C: unwind normally (temporary files are removed on the way out), and if anything
     swallows the interrupt, leave anyway a few seconds later."""
@@ -1041,13 +1044,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"lmjx {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print(f"lmjx {args.command}: interrupted; no output was written", file=sys.stderr)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        # Leave at once: XLA's worker threads may still be running the interrupted kernel,
-        # and tearing the interpreter down under them can crash.  Output files are written
-        # atomically, so there is nothing left to clean up.
-        os._exit(EXIT_INTERRUPTED)
+        _leave_interrupted(f"lmjx {args.command}: interrupted; no output was written")
 
 
 if __name__ == "__main__":

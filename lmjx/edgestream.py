@@ -137,11 +137,6 @@ def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
 PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
 
 
-def chunk_ranges_of(a: int, b: int, size: int) -> list[tuple[int, int]]:
-    """[a, b) cut into consecutive ranges of at most `size`."""
-    return [(x, min(x + size, b)) for x in range(a, b, size)]
-
-
 def packer_threads() -> int:
     """Threads packing computed chunks: a quarter of the host's cores, 1 to 4."""
     return max(1, min(4, (os.cpu_count() or 1) // 4))
@@ -339,7 +334,7 @@ class _MapWriter:
         import threading
 
         self.folder, self.reach, self.config, self.robot, self.n = folder, reach, config, robot, n
-        units = [u for a, b in todo for u in chunk_ranges_of(a, b, PACK_EDGES)]
+        units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
         self.ranges = sorted(done + units)
         self.saved = set(done)
         self.packers = packer_threads()
@@ -363,7 +358,7 @@ class _MapWriter:
 
         t0 = time.perf_counter()
         n = len(samples.which)
-        for a, b in chunk_ranges_of(samples.start, samples.start + n, PACK_EDGES):
+        for a, b in chunk_ranges(samples.start + n, PACK_EDGES, samples.start):
             job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
             while True:
                 if not self.thread.is_alive():
