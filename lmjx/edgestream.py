@@ -238,12 +238,15 @@ def build_map(
         for line in pre.lines():
             say(line)
         done_bytes = sum(f.stat().st_size for f in folder.iterdir()) if folder.is_dir() else 0
+        too_long = pre.seconds > DAY and not yes
         if pre.disk_bytes - done_bytes > pre.free_bytes:
+            # Both problems in one message: a user who frees room should not then learn about --yes.
+            also = f"; it would also take about {_duration(pre.seconds)}: add --yes to start anyway" if too_long else ""
             raise OutputPathError(
                 f"not enough room at {out.parent or '.'}: the build needs about {_size(pre.disk_bytes)}, "
-                f"{_size(pre.free_bytes)} are free; free some or choose another --out"
+                f"{_size(pre.free_bytes)} are free; free some or choose another --out{also}"
             )
-        if pre.seconds > DAY and not yes:
+        if too_long:
             raise ConfigError(
                 f"{n:,} edges would take about {_duration(pre.seconds)} here; add --yes to start anyway "
                 "(it can be stopped and resumed), or ask for fewer --edges"

@@ -131,15 +131,29 @@ def test_preflight_refuses_days_of_work_without_yes_and_missing_room(tmp_path, m
     import shutil
 
     from lmjx.edgestream import build_map
-    from lmjx.errors import OutputPathError
+    from lmjx.errors import ConfigError, OutputPathError
     from lmjx.failure import parse_failure
     from lmjx.robot import load_robot
 
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**12, 10**12 - 10**6, 10**6))
     robot = load_robot()
-    with pytest.raises(OutputPathError, match="not enough room"):
-        build_map(tmp_path / "m.h5", parse_failure("case2", robot), ReachConfig(), BundleConfig(edges=100_000), robot,
+
+    def build(edges: int) -> None:
+        build_map(tmp_path / "m.h5", parse_failure("case2", robot), ReachConfig(), BundleConfig(edges=edges), robot,
                   progress=False, say=lambda line: None)  # fmt: skip
+
+    def free(n: int):
+        return lambda path: shutil._ntuple_diskusage(10**15, 10**15 - n, n)
+
+    # the CLI run above meets one refusal or both, depending on this disk; here each on its own, then both
+    monkeypatch.setattr(shutil, "disk_usage", free(10**15))
+    with pytest.raises(ConfigError, match="add --yes"):
+        build(50_000_000)
+    monkeypatch.setattr(shutil, "disk_usage", free(10**6))
+    with pytest.raises(OutputPathError, match="not enough room") as info:
+        build(100_000)
+    assert "--yes" not in str(info.value)
+    with pytest.raises(OutputPathError, match=r"not enough room.*add --yes"):
+        build(50_000_000)
     assert not list(tmp_path.iterdir())
 
 
