@@ -19,6 +19,7 @@ import numpy as np
 
 _COMPILED: dict[tuple, tuple[Callable, dict[str, tuple[tuple[int, ...], np.dtype]]]] = {}
 _SOURCES = ("batching.py", "kernels/__init__.py")  # with every kernels/*.py: what a traced program depends on
+KEEP_BLOCKS = 16  # blocks a device returns its kept rows in (see ChunkedKernel)
 
 
 def _code_version() -> str:
@@ -88,6 +89,10 @@ class ChunkedKernel:
       sharded: split every call's batch over all devices of all processes (`lmjx.sharding`);
         each device runs the one-device program on `chunk` items, so results do not depend
         on the number of devices.
+      keep_by, kept: the outputs named in `kept` come back only for the items whose boolean
+        output `keep_by` is true (in item order); the others are never copied off the
+        device.  Each device sorts its kept rows first (stable) and returns them in
+        `KEEP_BLOCKS` blocks, of which only those holding kept rows are copied.
     """
 
     def __init__(
@@ -98,15 +103,28 @@ class ChunkedKernel:
         inputs: Sequence[tuple[type, tuple[int, ...]]],
         chunk: int,
         sharded: bool = False,
+        keep_by: str | None = None,
+        kept: tuple[str, ...] = (),
     ) -> None:
+        if sharded:
+            from . import sharding
+
+            # one device in all: the one-device program itself (the same numbers), which an
+            # export in the cache spares tracing
+            sharded = sharding.device_count() > 1
         self.sharded = sharded
+        self.keep_by, self.kept = keep_by, tuple(kept) if keep_by else ()
+        # One process: blocks of kept rows are copied from each device.  Several processes
+        # gather every output whole (`lmjx.sharding.to_host`) and select on the host.
+        self.compact = bool(self.kept) and jax.process_count() == 1
         self.mesh = None
         if sharded:
             from . import sharding
 
             self.mesh = sharding.mesh()
             chunk = chunk * sharding.device_count()
-        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded)
+        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded,
+                    self.keep_by, self.kept, self.compact)  # fmt: skip
         self.one = one
         if self.mesh is not None:
             from .sharding import put_replicated
@@ -121,6 +139,7 @@ class ChunkedKernel:
         # where run()'s time goes when results come back: waiting for the device, copying to
         # the host, selecting rows (the rest: preparing and dispatching launches)
         self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0}
+        self.copied_bytes = 0  # copied off the devices by run()
         self._fn: Callable | None = None
         self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
 
@@ -135,10 +154,29 @@ class ChunkedKernel:
         vmapped = jax.vmap(self.one, in_axes=axes)
         names: list[str] = []
 
+        per_device_chunk = self.chunk // (self.mesh.size if self.mesh is not None else 1)
+        block = -(-per_device_chunk // KEEP_BLOCKS)
+
         def flat(*args):  # the kernel's NamedTuple as a plain tuple (what an export can hold)
             res = vmapped(*args)
-            names[:] = res._fields
-            return tuple(res)
+            fields = list(res._fields)
+            outs = list(res)
+            if self.compact:
+                # this device's kept rows first, in item order; each kept output split in blocks
+                order = jnp.argsort(~res._asdict()[self.keep_by].astype(bool), stable=True)
+                pad = block * KEEP_BLOCKS - per_device_chunk
+                for name in self.kept:
+                    i = fields.index(name)
+                    x = outs[i][order]
+                    x = jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]) if pad else x
+                    outs[i] = None
+                    for b in range(KEEP_BLOCKS):
+                        fields.append(f"{name}#{b}")
+                        outs.append(x[b * block : (b + 1) * block])
+                keep = [i for i, o in enumerate(outs) if o is not None]
+                fields, outs = [fields[i] for i in keep], [outs[i] for i in keep]
+            names[:] = fields
+            return tuple(outs)
 
         if self.mesh is not None:
             # Each device runs the one-device program on its own rows (shard_map), rather
@@ -180,17 +218,38 @@ class ChunkedKernel:
 
         return to_host(y)
 
-    def run(
-        self,
-        *arrays: np.ndarray,
-        progress: Callable[[int], None] | None = None,
-        mask_by: str | None = None,
-        masked: tuple[str, ...] = (),
-    ) -> dict[str, np.ndarray]:
-        """Apply the kernel to every item of `arrays` (all of length n); numpy results.
-        With `mask_by`, the outputs named in `masked` keep only the rows where output
-        `mask_by` is true, selected as each output of each launch comes back (one full
-        output on the host at a time), so host memory holds only what is kept."""
+    def _kept_blocks(self, res: list, blocks: dict[str, list[int]], keep: np.ndarray) -> dict[str, np.ndarray]:
+        """The kept rows of each compacted output: from every device, the blocks that hold
+        its kept rows (copies started on all devices at once), in item order."""
+        shards_of = {k: [sorted(res[i].addressable_shards, key=lambda s: s.index[0].start or 0) for i in ids]
+                     for k, ids in blocks.items()}  # fmt: skip
+        for ids in blocks.values():
+            for i in ids:
+                res[i] = None
+        first = next(iter(shards_of.values()))[0]
+        per_device = self.chunk // len(first)
+        block = first[0].data.shape[0]
+        counts = [int(keep[d * per_device : (d + 1) * per_device].sum()) for d in range(len(first))]
+        wanted = {k: [[s[d].data for s in shards[: -(-counts[d] // block)]] for d in range(len(first))]
+                  for k, shards in shards_of.items()}  # fmt: skip
+        for per in wanted.values():
+            for arrays in per:
+                for a in arrays:
+                    a.copy_to_host_async()
+        out = {}
+        for k, per in wanted.items():
+            parts = []
+            for d, arrays in enumerate(per):
+                if arrays:
+                    parts.append(np.concatenate([np.asarray(a) for a in arrays])[: counts[d]])
+                    self.copied_bytes += sum(a.nbytes for a in arrays)
+            shape, dtype = self._out[f"{k}#0"]
+            out[k] = np.concatenate(parts) if parts else np.zeros((0, *shape), dtype)
+        return out
+
+    def run(self, *arrays: np.ndarray, progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
+        """Apply the kernel to every item of `arrays` (all of length n); numpy results, the
+        `kept` outputs for the items whose `keep_by` output is true only."""
         if self._fn is None:
             self._build()
         assert self._fn is not None
@@ -201,7 +260,10 @@ class ChunkedKernel:
         pending: tuple | None = None  # the call in flight: the device works while the host prepares the next
 
         names = list(self._out)
-        order = sorted(range(len(names)), key=lambda i: names[i] in masked)  # the mask first
+        plain = [i for i, k in enumerate(names) if "#" not in k]  # outputs copied whole
+        order = sorted(plain, key=lambda i: names[i] in self.kept)  # the mask first
+        blocks = {k: [names.index(f"{k}#{b}") for b in range(KEEP_BLOCKS)] for k in self.kept} if self.compact else {}
+        result_names = [names[i] for i in plain] + list(blocks)
 
         def collect(p: tuple) -> None:
             res, count = p  # res: a list, emptied as its outputs come back
@@ -212,15 +274,20 @@ class ChunkedKernel:
                 v.block_until_ready()
                 t1 = time.perf_counter()
                 host = self._host(v)[:count]
+                self.copied_bytes += v.nbytes
                 del v  # the device array and its host copy go as soon as the rows are taken
                 t2 = time.perf_counter()
-                if names[i] in masked:
-                    host = host[got[mask_by].astype(bool)]
+                if names[i] in self.kept:
+                    host = host[got[self.keep_by].astype(bool)]
                 got[names[i]] = host
                 self.timing["device_wait"] += t1 - t0
                 self.timing["to_host"] += t2 - t1
                 self.timing["mask"] += time.perf_counter() - t2
-            outs.append({k: got[k] for k in names})
+            if blocks:
+                t1 = time.perf_counter()
+                got.update(self._kept_blocks(res, blocks, got[self.keep_by][:count].astype(bool)))
+                self.timing["to_host"] += time.perf_counter() - t1
+            outs.append({k: got[k] for k in result_names})
             if progress is not None:
                 progress(count)
 
@@ -241,5 +308,7 @@ class ChunkedKernel:
             collect(pending)
         self.kernel_seconds += time.perf_counter() - t0
         if not outs:
-            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items()}
+            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items() if "#" not in k} | {
+                k: np.zeros((0, *self._out[f"{k}#0"][0]), self._out[f"{k}#0"][1]) for k in blocks
+            }
         return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}

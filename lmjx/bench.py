@@ -193,14 +193,15 @@ def bench_maps(robot: Robot, failures: list[str], config: ReachConfig) -> list[d
     return rows
 
 
-def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int) -> dict:
+def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int, cell: float | None = None) -> dict:
     """Edge rollouts (case 2, the default edge settings) against the serial C MuJoCo loop
-    doing the same computation and checks on the first `reference_edges` of the same edges."""
+    doing the same computation and checks on the first `reference_edges` of the same edges
+    (their starts drawn over a reach map of `cell` cells, the default when None)."""
     from .bundle import BundleConfig, EdgeKernels, roll_out, sample_edges
     from .rollout_ref import ReferenceRollout
 
     failure = bench_failure(robot)
-    reach = reach_map(failure, reach_config(robot), robot=robot)
+    reach = reach_map(failure, reach_config(robot, cell=cell) if cell else reach_config(robot), robot=robot)
     config = BundleConfig(edges=edges, seed=1, build_chunk=edges, interaction_points=robot.default_ips)
     kernels = EdgeKernels(robot, reach.failure, config, edges)
     samples = sample_edges(reach, config, robot, 0, edges, kernels)
@@ -310,7 +311,8 @@ def run_bench(args: argparse.Namespace) -> int:
         report["maps"] = bench_maps(robot, ["none"] if args.quick else ["none", *robot.profile.presets], map_cfg)
     if "rollouts" in sections:
         n_edges = 500 if args.quick else (100_000 if on_gpu else 5_000)
-        report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats)
+        report["rollouts"] = bench_rollouts(robot, n_edges, 20 if args.quick else 100, args.repeats,
+                                            cell=0.05 if args.quick else None)  # fmt: skip
         ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
     if "planner" in sections:
         from .bench_planner import bench_planner

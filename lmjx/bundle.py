@@ -266,7 +266,9 @@ class EdgeKernels:
         inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
         key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings)
         roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
-        self.rollout = ChunkedKernel(key, one, [], inputs, roll_chunk, sharded=sharded)
+        # only the valid edges' trajectories leave the device (about a quarter of them)
+        self.rollout = ChunkedKernel(key, one, [], inputs, roll_chunk, sharded=sharded, keep_by="valid",
+                                     kept=TRAJECTORIES)  # fmt: skip
 
     @property
     def compile_seconds(self) -> float:
@@ -357,8 +359,8 @@ def roll_out(
     """Roll out the sampled edges that have a start; returns their indices (sampling order)
     and the kernel's per-edge results in that order.  The trajectories (`TRAJECTORIES`) are
     kept for the valid edges only (row j: the j-th valid edge in sampling order): the
-    invalid ones' are dropped as each launch comes back, so a chunk holds in memory about
-    a quarter of what the kernel returns."""
+    invalid ones' never leave the device (`ChunkedKernel`'s `kept`), so a chunk holds in
+    memory about a quarter of what the kernel computes."""
     idx = np.nonzero(samples.has_start)[0]
     # Longest first, so that each launch's loop stops with edges of about its own length.
     idx = idx[np.argsort(-samples.length[idx], kind="stable")]
@@ -369,8 +371,6 @@ def roll_out(
         samples.twist[idx],
         samples.length[idx],
         progress=progress.update if progress else None,
-        mask_by="valid",
-        masked=TRAJECTORIES,
     )
     back = np.argsort(idx, kind="stable")  # to sampling order
     back_valid = np.argsort(idx[out["valid"].astype(bool)], kind="stable")
@@ -470,7 +470,7 @@ def pack_chunk(
     for code in range(1, len(REASONS)):
         rejected[code] = int(np.sum(out["reason"][~valid_local] == code))
     lens = (samples.length[keep] + 1).astype(np.int32)  # states per edge
-    rows = np.concatenate([np.arange(k) for k in lens]) if len(keep) else np.zeros(0, np.int64)
+    rows = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)  # step of each state
     src = np.repeat(np.arange(len(keep)), lens)  # trajectories: valid edges only (roll_out)
     q_fixed = reach.failure.q_fixed(robot.nq).astype(np.float32)
     q = np.broadcast_to(q_fixed, (len(rows), robot.nq)).copy()
@@ -522,28 +522,37 @@ def index_pairs(
     y0 = reach.ys[0] - cell / 2
     edge_of_row = np.repeat(np.arange(len(length), dtype=np.int64), length)
     n = len(p)
-    a = np.zeros(0, np.int64)
-    if n:
-        last = np.zeros(n, bool)
-        last[np.cumsum(length) - 1] = True
-        a = np.nonzero(~last)[0]
-    # the states, then the segments' inner points; only the low ones are kept
-    m = n + (substeps - 1) * len(a)
-    pts = np.empty((m, 3), p.dtype)
-    own = np.empty(m, np.int64)
-    pts[:n], own[:n] = p, edge_of_row
+    if n == 0:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    last = np.zeros(n, bool)
+    last[np.cumsum(length) - 1] = True
+    a = np.nonzero(~last)[0]
+    # Each step segment's points in trajectory order (its start state, then its inner points),
+    # then every edge's last state; only the low ones are kept.
+    seg = np.empty((len(a), substeps, 3), p.dtype)
+    pa, pb = p[a], p[a + 1]
+    seg[:, 0] = pa
     for s in range(1, substeps):
         t = s / substeps
-        lo = n + (s - 1) * len(a)
-        pts[lo : lo + len(a)] = p[a] * (1 - t) + p[a + 1] * t
-        own[lo : lo + len(a)] = edge_of_row[a]
+        seg[:, s] = pa * (1 - t) + pb * t
+    del pa, pb
+    pts = np.concatenate([seg.reshape(-1, 3), p[last]])
+    own = np.concatenate([np.repeat(edge_of_row[a], substeps), edge_of_row[last]])
+    del seg
     low = np.nonzero(pts[:, 2] - edge_radius[own] <= height)[0]
     pts, own = pts[low], own[low]
     ix = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
     iy = np.floor((pts[:, 1] - y0) / cell).astype(np.int64)
     inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
     width = max(1, len(length))
-    keys = np.unique((iy[inside] * nx + ix[inside]) * width + own[inside])
+    keys = (iy[inside] * nx + ix[inside]) * width + own[inside]
+    # a trajectory stays over a cell for several points: dropping repeats in a row first
+    # leaves a short sort (numpy's hash-based unique is much slower here)
+    if len(keys):
+        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+    keys.sort()
+    if len(keys):
+        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
     return (keys // width).astype(np.int32), (keys % width).astype(np.int32)
 
 

@@ -445,6 +445,7 @@ class _MapWriter:
             "seconds": round(edge_seconds, 4),
             "rollout_seconds": round(kernels.rollout.kernel_seconds, 4),
             "rollout_timing": {k: round(v, 4) for k, v in kernels.rollout.timing.items()},
+            "rollout_copied_bytes": kernels.rollout.copied_bytes,
             "ik_seconds": round(kernels.ik.kernel_seconds, 4),
             "compile_seconds": round(kernels.compile_seconds, 4),
             "write_seconds": round(self.t_write, 4),

@@ -7,6 +7,7 @@ add groups without changing the existing ones.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import os
@@ -195,7 +196,11 @@ class EdgeWriter:
         self.pending: dict[str, list[np.ndarray]] = {name: [] for name in PER_STATE}  # rows not yet written
         self.written = 0  # rows written (whole chunks, until the last)
         self.rows = 0  # rows given
-        self.pool = ThreadPoolExecutor(threads or os.cpu_count() or 1)
+        self.threads = threads or os.cpu_count() or 1
+        self.pool = ThreadPoolExecutor(self.threads)
+        # chunks being compressed, in file order: written as they are done, so the caller goes
+        # on while the pool works (at most `4 x threads` in flight)
+        self.inflight: collections.deque = collections.deque()
         self.edges: dict[str, h5py.Dataset] = {}
         self.n_edges = 0
         self.next_offset = 0
@@ -209,6 +214,7 @@ class EdgeWriter:
     def _flush(self, final: bool) -> None:
         n = self.rows - self.written if final else (self.rows - self.written) // STATE_ROWS * STATE_ROWS
         if n == 0:
+            self._write_done(wait=final, most=4 * self.threads)
             return
         for name in PER_STATE:
             buf = np.concatenate(self.pending[name])
@@ -216,12 +222,18 @@ class EdgeWriter:
             self.pending[name] = [rest] if len(rest) else []
             ds = self.states[name]
             ds.resize((self.written + n, self.widths[name]))
-            starts = list(range(0, n, STATE_ROWS))
-            blocks = [data[a : a + STATE_ROWS] for a in starts]
-            payloads = self.pool.map(_compress_rows, blocks, [self.widths[name]] * len(blocks))
-            for a, payload in zip(starts, payloads, strict=True):
-                ds.id.write_direct_chunk((self.written + a, 0), payload, 0)
+            for a in range(0, n, STATE_ROWS):
+                job = self.pool.submit(_compress_rows, data[a : a + STATE_ROWS], self.widths[name])
+                self.inflight.append((ds, self.written + a, job))
         self.written += n
+        self._write_done(wait=final, most=4 * self.threads)
+
+    def _write_done(self, wait: bool, most: int) -> None:
+        """Write the compressed chunks at the head of the queue: those done, those beyond
+        `most` in flight, or (`wait`) all."""
+        while self.inflight and (wait or len(self.inflight) > most or self.inflight[0][2].done()):
+            ds, row, job = self.inflight.popleft()
+            ds.id.write_direct_chunk((row, 0), job.result(), 0)
 
     def add_edges(self, arrays: dict[str, np.ndarray]) -> None:
         """Per-edge arrays (`PER_EDGE`) of the next edges, whose states came already, in order."""

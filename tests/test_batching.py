@@ -1,0 +1,63 @@
+"""lmjx.batching.ChunkedKernel: padded chunks give every item's result, and the `kept`
+outputs come back for the kept items only, in item order, copying only the blocks that hold
+them (checked against plain numpy on the same items)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from lmjx.batching import KEEP_BLOCKS, ChunkedKernel
+
+
+class _Out(NamedTuple):
+    keep: jnp.ndarray
+    score: jnp.ndarray
+    traj: jnp.ndarray
+
+
+def _one(x):
+    return _Out(keep=x[0] > 0.5, score=x.sum(), traj=jnp.outer(x, jnp.arange(1.0, 4.0)))
+
+
+def _reference(x: np.ndarray) -> dict[str, np.ndarray]:
+    keep = x[:, 0] > 0.5
+    traj = x[:, :, None] * np.arange(1.0, 4.0, dtype=np.float32)
+    return {"keep": keep, "score": x.sum(axis=1), "traj": traj[keep]}
+
+
+@pytest.mark.parametrize(("n", "chunk", "frac"), [(100, 37, 0.5), (64, 64, 0.05), (50, 20, 0.0), (30, 8, 1.0)])
+def test_kept_rows_are_the_host_selection(n, chunk, frac):
+    rng = np.random.default_rng(n)
+    x = rng.random((n, 5)).astype(np.float32)
+    x[:, 0] = np.where(rng.random(n) < frac, 0.9, 0.1)
+    k = ChunkedKernel(("test-keep", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",))
+    got = k.run(x)
+    want = _reference(x)
+    assert set(got) == set(want)
+    np.testing.assert_array_equal(got["keep"], want["keep"])
+    np.testing.assert_allclose(got["score"], want["score"], rtol=1e-6)
+    np.testing.assert_array_equal(got["traj"], want["traj"])
+    assert got["traj"].dtype == np.float32 and got["traj"].shape[1:] == (5, 3)
+    # only the blocks holding kept rows were copied: at most one block more per launch than needed
+    launches = -(-n // chunk)
+    block_bytes = -(-chunk // KEEP_BLOCKS) * 5 * 3 * 4
+    plain = launches * chunk * (1 + 4)  # keep (bool) and score (float32) come back whole
+    assert k.copied_bytes <= plain + want["traj"].nbytes + launches * block_bytes
+
+
+def test_without_keep_every_row_comes_back():
+    x = np.random.default_rng(0).random((45, 5)).astype(np.float32)
+    got = ChunkedKernel(("test-nokeep",), _one, [], [(np.float32, (5,))], 16).run(x)
+    x_traj = x[:, :, None] * np.arange(1.0, 4.0, dtype=np.float32)
+    np.testing.assert_array_equal(got["traj"], x_traj)
+    assert len(got["keep"]) == 45
+
+
+def test_empty_batch_has_the_result_shapes():
+    k = ChunkedKernel(("test-empty",), _one, [], [(np.float32, (5,))], 16, keep_by="keep", kept=("traj",))
+    got = k.run(np.zeros((0, 5), np.float32))
+    assert got["traj"].shape == (0, 5, 3) and got["keep"].shape == (0,)
