@@ -3,7 +3,7 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m decision uratlas; planner, gputests, evalgpu and decision need
+# warm100k edges5m shard5m shardscale decision uratlas; planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
@@ -126,6 +126,9 @@ for step in $steps; do
         --out "$WORK/case2_5M_all.h5" --json > "$OUT/build5m_all.json" 2> "$WORK/build5m_all.err"
       grep -aE "Elapsed|Maximum resident" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
       timeout 200 python3 benchmarks/same_map.py "$WORK/maps/case2_5M.h5" "$WORK/case2_5M_all.h5" ;;
+    shardscale)
+      # Issue 10: the rollout program alone on 1 and on every GPU, and the device-to-host copy rate.
+      timeout 300 python3 benchmarks/shard_scaling.py --edges 2000000 --out "$OUT/scaling.json" 2>&1 | tail -3 ;;
     decision)
       # Issue 10: one Greedy decision (GPU simulator, 1,024 candidates) on the 100k and the 5M map.
       [ -f "$WORK/maps/case2.h5" ] || timeout 300 python3 -m lmjx.cli build-map --failure case2 \
