@@ -238,13 +238,16 @@ class ChunkedKernel:
                     a.copy_to_host_async()
         out = {}
         for k, per in wanted.items():
-            parts = []
-            for d, arrays in enumerate(per):
-                if arrays:
-                    parts.append(np.concatenate([np.asarray(a) for a in arrays])[: counts[d]])
-                    self.copied_bytes += sum(a.nbytes for a in arrays)
             shape, dtype = self._out[f"{k}#0"]
-            out[k] = np.concatenate(parts) if parts else np.zeros((0, *shape), dtype)
+            rows = np.empty((sum(counts), *shape), dtype)  # each block's kept rows go straight here
+            at = 0
+            for d, arrays in enumerate(per):
+                for b, a in enumerate(arrays):
+                    take = min(block, counts[d] - b * block)
+                    rows[at : at + take] = np.asarray(a)[:take]
+                    at += take
+                    self.copied_bytes += a.nbytes
+            out[k] = rows
         return out
 
     def run(self, *arrays: np.ndarray, progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:

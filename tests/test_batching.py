@@ -61,3 +61,33 @@ def test_empty_batch_has_the_result_shapes():
     k = ChunkedKernel(("test-empty",), _one, [], [(np.float32, (5,))], 16, keep_by="keep", kept=("traj",))
     got = k.run(np.zeros((0, 5), np.float32))
     assert got["traj"].shape == (0, 5, 3) and got["keep"].shape == (0,)
+
+
+def test_kept_rows_from_several_devices():
+    """The same on 3 host devices (a sharded kernel: each device compacts its own rows)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = """
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_batching import _one, _reference
+from lmjx.batching import ChunkedKernel
+for n, chunk, frac in [(100, 7, 0.5), (500, 40, 0.3), (64, 64, 1.0), (50, 20, 0.0)]:
+    rng = np.random.default_rng(n)
+    x = rng.random((n, 5)).astype(np.float32)
+    x[:, 0] = np.where(rng.random(n) < frac, 0.9, 0.1)
+    k = ChunkedKernel(("t3", chunk), _one, [], [(np.float32, (5,))], chunk, sharded=True,
+                      keep_by="keep", kept=("traj",))
+    assert k.mesh is not None and k.mesh.size == 3
+    got, want = k.run(x), _reference(x)
+    assert np.array_equal(got["traj"], want["traj"]) and np.array_equal(got["keep"], want["keep"]), (n, chunk)
+print("ok")
+"""
+    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS="--xla_force_host_platform_device_count=3")
+    r = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], env=env, capture_output=True,
+                       text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
