@@ -63,16 +63,19 @@ def streamed(tmp_path_factory):
 
 def test_chunk_size_and_memory_do_not_change_the_datasets(robot, streamed, tmp_path):
     other = tmp_path / "b.h5"
-    # computed in chunks of 1100, packed in units of 300 (lmjx.edgestream.PACK_EDGES)
-    _, err = _run(["build-map", *SMALL, "--chunk", "1100", "--out", str(other)], env={"LMJX_PACK_EDGES": "300"})
-    assert "preflight:" in err
-    assert same_datasets(streamed, other) == []
+    # computed in chunks of 1100, packed in units of 300 (lmjx.edgestream.PACK_EDGES), in a
+    # process of its own while this one builds the bundle in memory
+    p = _lmjx(["build-map", *SMALL, "--chunk", "1100", "--out", str(other)], env={"LMJX_PACK_EDGES": "300"})
     # the in-memory bundle (lmjx.bundle.build_bundle, in chunks of 250) writes the same datasets
     reach = reach_map("case2", ReachConfig(cell=0.05, seed=1), robot=robot)
     bundle = build_bundle(reach, BundleConfig(edges=1500, seed=1, build_chunk=250), robot=robot)
     whole = tmp_path / "whole.h5"
     write_map(whole, reach, bundle, robot)
     assert same_datasets(streamed, whole) == []
+    _, err = p.communicate(timeout=900)
+    assert p.returncode == 0, err[-3000:]
+    assert "preflight:" in err
+    assert same_datasets(streamed, other) == []
     assert not Path(str(other) + ".partial").exists() and bundle.n_edges > 100
 
 
@@ -164,16 +167,19 @@ def test_missing_ranges_cover_what_is_not_saved():
 
 
 def test_four_devices_and_two_processes_build_the_same_file(streamed, tmp_path):
+    # the three runs at once: one process with 4 host devices, and 2 processes of one device each
     four = tmp_path / "four.h5"
-    out, _ = _run(["build-map", *SMALL, "--out", str(four), "--json"],
-                  env={"XLA_FLAGS": "--xla_force_host_platform_device_count=4"})  # fmt: skip
-    assert json.loads(out)["devices"] == 4
-    assert same_datasets(streamed, four) == []
+    p4 = _lmjx(["build-map", *SMALL, "--out", str(four), "--json"],
+               env={"XLA_FLAGS": "--xla_force_host_platform_device_count=4"})  # fmt: skip
     with socket.socket() as sk:
         sk.bind(("127.0.0.1", 0))
         port = sk.getsockname()[1]
     common = ["build-map", *SMALL, "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--json"]
     procs = [_lmjx([*common, "--out", str(tmp_path / f"p{i}.h5"), "--process-id", str(i)]) for i in range(2)]
+    out, err = p4.communicate(timeout=900)
+    assert p4.returncode == 0, err[-3000:]
+    assert json.loads(out)["devices"] == 4
+    assert same_datasets(streamed, four) == []
     outs = [p.communicate(timeout=900) for p in procs]
     assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     text = outs[0][0]
