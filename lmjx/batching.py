@@ -106,12 +106,11 @@ class ChunkedKernel:
         keep_by: str | None = None,
         kept: tuple[str, ...] = (),
     ) -> None:
-        if sharded:
-            from . import sharding
+        from . import sharding
 
-            # one device in all: the one-device program itself (the same numbers), which an
-            # export in the cache spares tracing
-            sharded = sharding.device_count() > 1
+        # one device in all: the one-device program itself (the same numbers), which an
+        # export in the cache spares tracing
+        sharded = sharded and sharding.device_count() > 1
         self.sharded = sharded
         self.keep_by, self.kept = keep_by, tuple(kept) if keep_by else ()
         # One process: blocks of kept rows are copied from each device.  Several processes
@@ -119,8 +118,6 @@ class ChunkedKernel:
         self.compact = bool(self.kept) and jax.process_count() == 1
         self.mesh = None
         if sharded:
-            from . import sharding
-
             self.mesh = sharding.mesh()
             chunk = chunk * sharding.device_count()
         self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded,
@@ -141,7 +138,13 @@ class ChunkedKernel:
         self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0}
         self.copied_bytes = 0  # copied off the devices by run()
         self._fn: Callable | None = None
-        self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+        self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}  # the program's outputs
+
+    def _results(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+        """run()'s results, (shape, dtype) per item: the outputs copied whole, then each
+        output compacted into blocks (named by its first block, "name#0")."""
+        plain = {k: v for k, v in self._out.items() if "#" not in k}
+        return plain | {k.removesuffix("#0"): v for k, v in self._out.items() if k.endswith("#0")}
 
     def _build(self) -> None:
         if self.key in _COMPILED:
@@ -237,8 +240,9 @@ class ChunkedKernel:
                 for a in arrays:
                     a.copy_to_host_async()
         out = {}
+        results = self._results()
         for k, per in wanted.items():
-            shape, dtype = self._out[f"{k}#0"]
+            shape, dtype = results[k]
             rows = np.empty((sum(counts), *shape), dtype)  # each block's kept rows go straight here
             at = 0
             for d, arrays in enumerate(per):
@@ -266,7 +270,7 @@ class ChunkedKernel:
         plain = [i for i, k in enumerate(names) if "#" not in k]  # outputs copied whole
         order = sorted(plain, key=lambda i: names[i] in self.kept)  # the mask first
         blocks = {k: [names.index(f"{k}#{b}") for b in range(KEEP_BLOCKS)] for k in self.kept} if self.compact else {}
-        result_names = [names[i] for i in plain] + list(blocks)
+        results = self._results()
 
         def collect(p: tuple) -> None:
             res, count = p  # res: a list, emptied as its outputs come back
@@ -290,7 +294,7 @@ class ChunkedKernel:
                 t1 = time.perf_counter()
                 got.update(self._kept_blocks(res, blocks, got[self.keep_by][:count].astype(bool)))
                 self.timing["to_host"] += time.perf_counter() - t1
-            outs.append({k: got[k] for k in result_names})
+            outs.append({k: got[k] for k in results})
             if progress is not None:
                 progress(count)
 
@@ -311,7 +315,5 @@ class ChunkedKernel:
             collect(pending)
         self.kernel_seconds += time.perf_counter() - t0
         if not outs:
-            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in self._out.items() if "#" not in k} | {
-                k: np.zeros((0, *self._out[f"{k}#0"][0]), self._out[f"{k}#0"][1]) for k in blocks
-            }
+            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in results.items()}
         return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}

@@ -548,12 +548,14 @@ def index_pairs(
     keys = (iy[inside] * nx + ix[inside]) * width + own[inside]
     # a trajectory stays over a cell for several points: dropping repeats in a row first
     # leaves a short sort (numpy's hash-based unique is much slower here)
-    if len(keys):
-        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
-    keys.sort()
-    if len(keys):
-        keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+    keys = np.sort(_drop_repeats(keys))
+    keys = _drop_repeats(keys)
     return (keys // width).astype(np.int32), (keys % width).astype(np.int32)
+
+
+def _drop_repeats(x: np.ndarray) -> np.ndarray:
+    """`x` without the elements equal to the one before them."""
+    return x[np.concatenate([[True], x[1:] != x[:-1]])] if len(x) else x
 
 
 def csr(cells: np.ndarray, edges: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:

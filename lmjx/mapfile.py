@@ -213,10 +213,7 @@ class EdgeWriter:
 
     def _flush(self, final: bool) -> None:
         n = self.rows - self.written if final else (self.rows - self.written) // STATE_ROWS * STATE_ROWS
-        if n == 0:
-            self._write_done(wait=final, most=4 * self.threads)
-            return
-        for name in PER_STATE:
+        for name in PER_STATE if n else ():
             buf = np.concatenate(self.pending[name])
             data, rest = buf[:n], buf[n:]
             self.pending[name] = [rest] if len(rest) else []
@@ -226,11 +223,12 @@ class EdgeWriter:
                 job = self.pool.submit(_compress_rows, data[a : a + STATE_ROWS], self.widths[name])
                 self.inflight.append((ds, self.written + a, job))
         self.written += n
-        self._write_done(wait=final, most=4 * self.threads)
+        self._write_done(wait=final)
 
-    def _write_done(self, wait: bool, most: int) -> None:
+    def _write_done(self, wait: bool) -> None:
         """Write the compressed chunks at the head of the queue: those done, those beyond
-        `most` in flight, or (`wait`) all."""
+        `4 x threads` in flight, or (`wait`) all."""
+        most = 4 * self.threads
         while self.inflight and (wait or len(self.inflight) > most or self.inflight[0][2].done()):
             ds, row, job = self.inflight.popleft()
             ds.id.write_direct_chunk((row, 0), job.result(), 0)
