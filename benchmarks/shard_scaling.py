@@ -53,25 +53,102 @@ def _compute_seconds(kernel, launches) -> float:
     return statistics.median(one_pass() for _ in range(3))
 
 
-def _copy_rate(arrays: list[jax.Array]) -> float:
-    """GB/s for copying `arrays` (one per device) to the host at once, a thread each."""
-    out: list = [None] * len(arrays)
+def _fresh(rows: int, devices) -> list[jax.Array]:
+    """New device arrays (JAX keeps an array's host copy once made: each copy needs new ones)."""
+    out = [jax.device_put(np.full((rows, 101, 13), 1.5, np.float32), d) for d in devices]
+    jax.block_until_ready(out)
+    return out
 
-    def get(i: int) -> None:
-        out[i] = np.asarray(arrays[i])
 
+def _threads(fn, items) -> float:
+    """Seconds for fn(item) on every item at once, a thread each."""
     t0 = time.perf_counter()
-    threads = [threading.Thread(target=get, args=(i,)) for i in range(len(arrays))]
+    threads = [threading.Thread(target=fn, args=(x,)) for x in items]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    return sum(a.nbytes for a in arrays) / (time.perf_counter() - t0) / 1e9
+    return time.perf_counter() - t0
+
+
+def _copies(rows: int) -> dict:
+    """GB/s off the devices by several means, for arrays of (rows, 101, 13) float32 (the
+    shape of a launch's trajectories): np.asarray from one device and from every device at
+    once (a thread each), the same after copy_to_host_async, in 16 pieces, into pinned host
+    memory (`memory_kind="pinned_host"`) then to numpy, torch through DLPack into a pinned
+    buffer (the link's ceiling), and host memory copies into fresh and reused buffers."""
+    devs = jax.devices()
+    res: dict = {}
+
+    def rate(arrs, seconds) -> float:
+        return round(sum(a.nbytes for a in arrs) / seconds / 1e9, 3)
+
+    def asarray_all(arrs) -> float:
+        return rate(arrs, _threads(lambda a: np.asarray(a), arrs))
+
+    _ = asarray_all(_fresh(rows, devs[:1]))  # warm-up
+    res["asarray_one"] = asarray_all(_fresh(rows, devs[:1]))
+    res["asarray_all"] = asarray_all(_fresh(rows, devs))
+    arrs = _fresh(rows, devs)
+    t0 = time.perf_counter()
+    for a in arrs:
+        a.copy_to_host_async()
+    for a in arrs:
+        np.asarray(a)
+    res["async_then_asarray_all"] = rate(arrs, time.perf_counter() - t0)
+    pieces = [jax.device_put(np.full((rows // 16, 101, 13), 1.5, np.float32), d) for d in devs for _ in range(16)]
+    jax.block_until_ready(pieces)
+    t0 = time.perf_counter()
+    for a in pieces:
+        a.copy_to_host_async()
+    for a in pieces:
+        np.asarray(a)
+    res["pieces16_async_all"] = rate(pieces, time.perf_counter() - t0)
+    try:
+        from jax.sharding import SingleDeviceSharding
+
+        arrs = _fresh(rows, devs)
+        t0 = time.perf_counter()
+        pinned = [jax.device_put(a, SingleDeviceSharding(a.devices().pop(), memory_kind="pinned_host")) for a in arrs]
+        jax.block_until_ready(pinned)
+        t1 = time.perf_counter()
+        for a in pinned:
+            np.asarray(a)
+        t2 = time.perf_counter()
+        res["pinned_host_put_all"] = rate(arrs, t1 - t0)
+        res["pinned_host_to_numpy"] = rate(arrs, t2 - t1)
+    except Exception as e:
+        res["pinned_host_error"] = repr(e)[:200]
+    try:
+        import torch
+
+        arrs = _fresh(rows, devs)
+        bufs = [torch.empty(a.shape, dtype=torch.float32, pin_memory=True) for a in arrs]
+        t0 = time.perf_counter()
+        for a, b in zip(arrs, bufs, strict=True):
+            b.copy_(torch.from_dlpack(a), non_blocking=True)
+        torch.cuda.synchronize()
+        for i in range(len(arrs)):
+            torch.cuda.synchronize(i)
+        res["torch_pinned_all"] = rate(arrs, time.perf_counter() - t0)
+    except Exception as e:
+        res["torch_error"] = repr(e)[:200]
+    src = np.full((rows, 101, 13), 1.5, np.float32)
+    t0 = time.perf_counter()
+    dst = np.empty_like(src)
+    dst[...] = src
+    t1 = time.perf_counter()
+    dst[...] = src
+    t2 = time.perf_counter()
+    res["host_copy_fresh"] = rate([src], t1 - t0)
+    res["host_copy_reused"] = rate([src], t2 - t1)
+    return res
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--edges", type=int, default=1_000_000)
+    ap.add_argument("--copies-only", action="store_true", help="only the copy rates")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     robot = load_robot()
@@ -79,7 +156,7 @@ def main() -> None:
     config = BundleConfig(edges=args.edges)
     report: dict = {"edges": args.edges, "device": str(jax.devices()[0].device_kind), "devices": jax.device_count()}
     samples = None
-    for sharded in (False, True):
+    for sharded in () if args.copies_only else (False, True):
         kernels = EdgeKernels(robot, reach.failure, config, args.edges, sharded=sharded)
         if samples is None:
             samples = sample_edges(reach, config, robot, 0, args.edges, kernels)
@@ -91,14 +168,13 @@ def main() -> None:
         print(name, report[name], flush=True)
         if sharded:
             report["compute_speedup"] = round(report["one_device"]["compute_s"] / secs, 3)
-    # copies: one launch's trajectories, from one device and from every device at once
-    per_device = [jax.device_put(np.ones((131072, config.steps + 1, 5), np.float32), d) for d in jax.devices()]
-    jax.block_until_ready(per_device)
-    _copy_rate(per_device[:1])
-    report["copy_GBps_one_device"] = round(_copy_rate(per_device[:1]), 3)
-    fresh = [jax.device_put(np.ones((131072, config.steps + 1, 5), np.float32), d) for d in jax.devices()]
-    jax.block_until_ready(fresh)
-    report["copy_GBps_all_devices"] = round(_copy_rate(fresh), 3)
+    # copies, with glibc's default allocator and then as lmjx's commands set it
+    report["copy_GBps"] = _copies(65536)
+    from lmjx.hostmem import return_large_buffers
+
+    return_large_buffers()
+    report["copy_GBps_mmap_1MB"] = _copies(65536)
+    print(json.dumps(report["copy_GBps"]), json.dumps(report["copy_GBps_mmap_1MB"]), flush=True)
     report["trajectories"] = list(TRAJECTORIES)
     print(json.dumps(report))
     if args.out:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -70,6 +71,26 @@ def backend() -> str:
     return jax.default_backend()
 
 
+_PINNED = {"ok": True}  # off after the first failure: a JAX or platform without pinned host memory
+
+
+def fetch(arrays: Sequence[jax.Array]) -> list[np.ndarray]:
+    """Single-device arrays on the host.  On a GPU they go through pinned (page-locked) host
+    memory: one DMA each, all started at once, then viewed by numpy without a copy (JAX's
+    plain copy lands in freshly mapped pageable memory, measured at 1.5-2 GB/s on an H200
+    against 18 GB/s this way; benchmarks/shard_scaling.py)."""
+    arrays = list(arrays)
+    if arrays and _PINNED["ok"] and arrays[0].devices().pop().platform == "gpu":
+        try:
+            moved = [jax.device_put(a, a.sharding.with_memory_kind("pinned_host")) for a in arrays]
+            return [np.asarray(m) for m in moved]
+        except Exception:  # no pinned host memory here: the plain copy from now on
+            _PINNED["ok"] = False
+    for a in arrays:
+        a.copy_to_host_async()
+    return [np.asarray(a) for a in arrays]
+
+
 def device_description() -> str:
     dev = jax.devices()[0]
     kind = getattr(dev, "device_kind", "") or ""
@@ -90,9 +111,11 @@ class ChunkedKernel:
         each device runs the one-device program on `chunk` items, so results do not depend
         on the number of devices.
       keep_by, kept: the outputs named in `kept` come back only for the items whose boolean
-        output `keep_by` is true (in item order); the others are never copied off the
-        device.  Each device sorts its kept rows first (stable) and returns them in
-        `KEEP_BLOCKS` blocks, of which only those holding kept rows are copied.
+        output `keep_by` is true (in item order, or as `run`'s `kept_dest` places them);
+        the others are never copied off the device.  Each device sorts its kept rows first
+        (stable) and returns them in `KEEP_BLOCKS` blocks, of which only those holding kept
+        rows are copied.
+      device: run on this device (not sharded); by default JAX's default device.
     """
 
     def __init__(
@@ -105,12 +128,15 @@ class ChunkedKernel:
         sharded: bool = False,
         keep_by: str | None = None,
         kept: tuple[str, ...] = (),
+        device: jax.Device | None = None,
     ) -> None:
         from . import sharding
 
         # one device in all: the one-device program itself (the same numbers), which an
         # export in the cache spares tracing
-        sharded = sharded and sharding.device_count() > 1
+        sharded = sharded and sharding.device_count() > 1 and device is None
+        self.device = device
+        self._lock = threading.Lock()  # several threads may share a kernel: one builds it
         self.sharded = sharded
         self.keep_by, self.kept = keep_by, tuple(kept) if keep_by else ()
         # One process: blocks of kept rows are copied from each device.  Several processes
@@ -122,11 +148,14 @@ class ChunkedKernel:
             chunk = chunk * sharding.device_count()
         self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded,
                     self.keep_by, self.kept, self.compact)  # fmt: skip
+        self.placed = (*self.key, device.id if device is not None else None)  # what _COMPILED holds
         self.one = one
         if self.mesh is not None:
             from .sharding import put_replicated
 
             self.shared = [put_replicated(np.asarray(a), self.mesh) for a in shared]
+        elif device is not None:
+            self.shared = [jax.device_put(np.asarray(a), device) for a in shared]
         else:
             self.shared = [jnp.asarray(np.asarray(a)) for a in shared]
         self.inputs = list(inputs)
@@ -147,8 +176,13 @@ class ChunkedKernel:
         return plain | {k.removesuffix("#0"): v for k, v in self._out.items() if k.endswith("#0")}
 
     def _build(self) -> None:
-        if self.key in _COMPILED:
-            self._fn, self._out = _COMPILED[self.key]
+        with self._lock:
+            if self._fn is None:
+                self._build_locked()
+
+    def _build_locked(self) -> None:
+        if self.placed in _COMPILED:
+            self._fn, self._out = _COMPILED[self.placed]
             return
         t0 = time.perf_counter()
         # numpy dummies: a jnp.zeros of a new shape would itself compile a small program.
@@ -205,9 +239,11 @@ class ChunkedKernel:
         self.compile_seconds = time.perf_counter() - t0
         self._out = {k: (np.shape(v)[1:], np.dtype(v.dtype)) for k, v in zip(names, res, strict=True)}
         self._fn = compiled
-        _COMPILED[self.key] = (compiled, self._out)
+        _COMPILED[self.placed] = (compiled, self._out)
 
     def _put(self, x: np.ndarray) -> jax.Array:
+        if self.device is not None:
+            return jax.device_put(x, self.device)
         if self.mesh is None:
             return jnp.asarray(x)
         from .sharding import put_batch
@@ -216,14 +252,15 @@ class ChunkedKernel:
 
     def _host(self, y: jax.Array) -> np.ndarray:
         if self.mesh is None:
-            return np.asarray(y)
+            return fetch([y])[0]
         from .sharding import to_host
 
         return to_host(y)
 
-    def _kept_blocks(self, res: list, blocks: dict[str, list[int]], keep: np.ndarray) -> dict[str, np.ndarray]:
-        """The kept rows of each compacted output: from every device, the blocks that hold
-        its kept rows (copies started on all devices at once), in item order."""
+    def _kept_blocks(self, res: list, blocks: dict[str, list[int]], keep: np.ndarray) -> dict[str, list[np.ndarray]]:
+        """The kept rows of each compacted output, as host arrays in item order: from every
+        device, the blocks that hold its kept rows (all copied at once), each cut to the
+        kept rows it holds."""
         shards_of = {k: [sorted(res[i].addressable_shards, key=lambda s: s.index[0].start or 0) for i in ids]
                      for k, ids in blocks.items()}  # fmt: skip
         for ids in blocks.values():
@@ -233,30 +270,25 @@ class ChunkedKernel:
         per_device = self.chunk // len(first)
         block = first[0].data.shape[0]
         counts = [int(keep[d * per_device : (d + 1) * per_device].sum()) for d in range(len(first))]
-        wanted = {k: [[s[d].data for s in shards[: -(-counts[d] // block)]] for d in range(len(first))]
-                  for k, shards in shards_of.items()}  # fmt: skip
-        for per in wanted.values():
-            for arrays in per:
-                for a in arrays:
-                    a.copy_to_host_async()
-        out = {}
-        results = self._results()
-        for k, per in wanted.items():
-            shape, dtype = results[k]
-            rows = np.empty((sum(counts), *shape), dtype)  # each block's kept rows go straight here
-            at = 0
-            for d, arrays in enumerate(per):
-                for b, a in enumerate(arrays):
-                    take = min(block, counts[d] - b * block)
-                    rows[at : at + take] = np.asarray(a)[:take]
-                    at += take
-                    self.copied_bytes += a.nbytes
-            out[k] = rows
+        wanted = [(k, d, b, s[d].data) for k, shards in shards_of.items() for d in range(len(first))
+                  for b, s in enumerate(shards[: -(-counts[d] // block)])]  # fmt: skip
+        host = fetch([w[3] for w in wanted])
+        out: dict[str, list[np.ndarray]] = {k: [] for k in blocks}
+        for (k, d, b, a), h in zip(wanted, host, strict=True):
+            out[k].append(h[: min(block, counts[d] - b * block)])
+            self.copied_bytes += a.nbytes
         return out
 
-    def run(self, *arrays: np.ndarray, progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
+    def run(
+        self,
+        *arrays: np.ndarray,
+        progress: Callable[[int], None] | None = None,
+        kept_dest: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> dict[str, np.ndarray]:
         """Apply the kernel to every item of `arrays` (all of length n); numpy results, the
-        `kept` outputs for the items whose `keep_by` output is true only."""
+        `kept` outputs for the items whose `keep_by` output is true only: in item order, or
+        row j (the j-th kept item) at row `kept_dest(keep)[j]`, where `keep` is the (n,)
+        `keep_by` mask (each kept row is copied once, straight to its place)."""
         if self._fn is None:
             self._build()
         assert self._fn is not None
@@ -264,6 +296,7 @@ class ChunkedKernel:
         n = len(arrays[0])
         c = self.chunk
         outs: list[dict[str, np.ndarray]] = []
+        kept_parts: dict[str, list[np.ndarray]] = {k: [] for k in self.kept}  # kept rows in item order, in pieces
         pending: tuple | None = None  # the call in flight: the device works while the host prepares the next
 
         names = list(self._out)
@@ -285,16 +318,18 @@ class ChunkedKernel:
                 del v  # the device array and its host copy go as soon as the rows are taken
                 t2 = time.perf_counter()
                 if names[i] in self.kept:
-                    host = host[got[self.keep_by].astype(bool)]
-                got[names[i]] = host
+                    kept_parts[names[i]].append(host[got[self.keep_by].astype(bool)])
+                else:
+                    got[names[i]] = host
                 self.timing["device_wait"] += t1 - t0
                 self.timing["to_host"] += t2 - t1
                 self.timing["mask"] += time.perf_counter() - t2
             if blocks:
                 t1 = time.perf_counter()
-                got.update(self._kept_blocks(res, blocks, got[self.keep_by][:count].astype(bool)))
+                for k, parts in self._kept_blocks(res, blocks, got[self.keep_by][:count].astype(bool)).items():
+                    kept_parts[k] += parts
                 self.timing["to_host"] += time.perf_counter() - t1
-            outs.append({k: got[k] for k in results})
+            outs.append(got)
             if progress is not None:
                 progress(count)
 
@@ -313,7 +348,32 @@ class ChunkedKernel:
             del res, parts
         if pending is not None:
             collect(pending)
+        whole = {k: np.concatenate([o[k] for o in outs]) if outs else np.zeros((0, *results[k][0]), results[k][1])
+                 for k in results if k not in self.kept}  # fmt: skip
+        if self.kept:
+            t1 = time.perf_counter()
+            whole |= self._place(kept_parts, whole[self.keep_by].astype(bool), kept_dest, results)
+            self.timing["place"] = self.timing.get("place", 0.0) + time.perf_counter() - t1
         self.kernel_seconds += time.perf_counter() - t0
-        if not outs:
-            return {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in results.items()}
-        return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
+        return whole
+
+    @staticmethod
+    def _place(parts: dict[str, list[np.ndarray]], keep: np.ndarray, kept_dest, results: dict) -> dict[str, np.ndarray]:
+        """Each kept output's pieces (its kept rows in item order) in one array, every row
+        copied once: in item order, or to the rows `kept_dest(keep)` gives."""
+        n = int(keep.sum())
+        dest = None if kept_dest is None else np.asarray(kept_dest(keep))
+        out = {}
+        for k, pieces in parts.items():
+            shape, dtype = results[k]
+            rows = np.empty((n, *shape), dtype)
+            at = 0
+            for x in pieces:
+                if dest is None:
+                    rows[at : at + len(x)] = x
+                else:
+                    rows[dest[at : at + len(x)]] = x
+                at += len(x)
+            assert at == n, (k, at, n)
+            out[k] = rows
+        return out

@@ -77,6 +77,13 @@ class BundleConfig:
             return self.build_chunk
         return self.kernel_chunk() * devices * (2 if backend() != "cpu" else 32)
 
+    def edges_per_job(self) -> int:
+        """Edges per streamed chunk when each device takes whole chunks, two at a time
+        (`lmjx.edgestream`): one launch on a GPU, 32 on a CPU."""
+        if self.build_chunk:
+            return self.build_chunk
+        return self.kernel_chunk() * (1 if backend() != "cpu" else 32)
+
     def validate(self, robot: Robot) -> None:
         if self.edges is not None and not 1 <= self.edges <= MAX_EDGES:
             raise ConfigError(f"--edges must be between 1 and {MAX_EDGES:,}, got {self.edges}")
@@ -222,7 +229,7 @@ class EdgeSamples:
 class EdgeKernels:
     """The start IK and the rollout programs of one failure's edges, made once per build
     with fixed launch sizes (so every chunk reuses them).  `sharded` splits every launch
-    over all devices of all processes."""
+    over all devices of all processes; `device` runs them on that device alone."""
 
     def __init__(
         self,
@@ -232,13 +239,14 @@ class EdgeKernels:
         n: int,
         sharded: bool = False,
         cube_half: float = 0.025,
+        device=None,
     ) -> None:
         self.robot = robot
         self.failure = failure
         self.config = config
         self.sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
         devices = 1
-        if sharded:
+        if sharded and device is None:
             from .sharding import device_count
 
             devices = device_count()
@@ -252,6 +260,7 @@ class EdgeKernels:
             default_ik_settings(iterations=config.ik_iterations, cube_half=cube_half),
             min(kchunk * m, -(-per_chunk * m // (1024 * devices)) * 1024),
             sharded=sharded,
+            device=device,
         )
         free = failure.free(robot.nq)
         q_fixed = failure.q_fixed(robot.nq)
@@ -268,7 +277,7 @@ class EdgeKernels:
         roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
         # only the valid edges' trajectories leave the device (about a quarter of them)
         self.rollout = ChunkedKernel(key, one, [], inputs, roll_chunk, sharded=sharded, keep_by="valid",
-                                     kept=TRAJECTORIES)  # fmt: skip
+                                     kept=TRAJECTORIES, device=device)  # fmt: skip
 
     @property
     def compile_seconds(self) -> float:
@@ -365,16 +374,23 @@ def roll_out(
     # Longest first, so that each launch's loop stops with edges of about its own length.
     idx = idx[np.argsort(-samples.length[idx], kind="stable")]
 
+    def in_sampling_order(keep: np.ndarray) -> np.ndarray:
+        """Where each kept trajectory (in launch order) goes: its rank in sampling order."""
+        rank = np.zeros(len(samples.which), np.int64)
+        rank[idx[keep]] = 1
+        rank = np.cumsum(rank) - 1
+        return rank[idx[keep]]
+
     out = kernels.rollout.run(
         samples.which[idx],
         samples.q_start[idx],
         samples.twist[idx],
         samples.length[idx],
         progress=progress.update if progress else None,
+        kept_dest=in_sampling_order,  # trajectories land in sampling order, copied once
     )
     back = np.argsort(idx, kind="stable")  # to sampling order
-    back_valid = np.argsort(idx[out["valid"].astype(bool)], kind="stable")
-    return idx[back], {k: v[back_valid] if k in TRAJECTORIES else v[back] for k, v in out.items()}
+    return idx[back], {k: v if k in TRAJECTORIES else v[back] for k, v in out.items()}
 
 
 def split_rolled(

@@ -31,6 +31,7 @@ Several devices: every launch is split over all local devices (`sharding`); seve
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import re
@@ -138,8 +139,8 @@ PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
 
 
 def packer_threads() -> int:
-    """Threads packing computed chunks: a quarter of the host's cores, 1 to 4."""
-    return max(1, min(4, (os.cpu_count() or 1) // 4))
+    """Threads packing computed chunks: a third of the host's cores, 1 to 12."""
+    return max(1, min(12, (os.cpu_count() or 1) // 3))
 
 
 def partial_path(out: str | Path) -> Path:
@@ -167,11 +168,20 @@ def _plan(robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: Bundle
 
 
 def saved_chunks(folder: Path) -> list[tuple[int, int]]:
-    """The chunk ranges saved in a partial folder, in order (temporary files removed)."""
+    """The chunk ranges saved in a partial folder, in order (temporary files removed, and
+    damaged ones: a chunk's file is not synced to disk, so a crash of the machine, unlike a
+    killed build, may leave one unreadable; it is computed again)."""
     ranges = []
     for f in folder.iterdir():
         m = CHUNK_FILE.match(f.name)
         if m:
+            try:
+                with np.load(f) as z:
+                    if set(z.files) != {"meta", *EdgeChunk.ARRAYS}:
+                        raise ValueError(f"{f.name}: not a whole chunk")
+            except Exception:  # whatever is wrong with it, it is redone
+                f.unlink(missing_ok=True)
+                continue
             ranges.append((int(m.group(1)), int(m.group(2))))
         elif f.name.startswith(".") and f.name.endswith(".tmp"):
             f.unlink(missing_ok=True)  # a save a kill interrupted
@@ -190,13 +200,14 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
 
 
 def _save(folder: Path, chunk: EdgeChunk) -> None:
+    """A packed chunk into the partial folder, atomically (a killed build leaves it whole
+    or absent).  Not synced to disk: a sync per chunk made the disk, not the GPUs, set a
+    build's pace (see `saved_chunks` for a machine crash)."""
     path = folder / f"edges-{chunk.start}-{chunk.stop}.npz"
     tmp = folder / f".{path.name}.{os.getpid()}.tmp"
     meta = {"rolled_out": chunk.rolled_out, "states_evaluated": chunk.states_evaluated, "seconds": chunk.seconds}
     with open(tmp, "wb") as fh:
         np.savez(fh, meta=np.array(json.dumps(meta)), **{k: getattr(chunk, k) for k in EdgeChunk.ARRAYS})
-        fh.flush()
-        os.fsync(fh.fileno())
     os.replace(tmp, path)
 
 
@@ -268,7 +279,11 @@ def build_map(
             os.replace(tmp, plan_path)
         if (folder / "reach.h5").exists():
             reach = load_map(folder / "reach.h5", robot).reach
-    size = config.edges_per_chunk(devices)
+    # One process with several devices: each device runs whole chunks of its own (its own
+    # programs, and host threads preparing and collecting its work), so that the host work
+    # scales with the devices too.  Several processes: every launch spread over all devices.
+    split = sharded and jax.process_count() == 1 and len(jax.local_devices()) > 1
+    size = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
     done = saved_chunks(folder) if lead else []
     todo = missing_ranges(done, n, size) if lead else []
     if jax.process_count() > 1:  # everyone follows process 0's record of what is left
@@ -288,28 +303,60 @@ def build_map(
         if lead and not has_reach:
             write_reach_map(folder / "reach.h5", reach, robot)
     t_reach = time.perf_counter() - t0
-    kernels = EdgeKernels(robot, failure, config, n, sharded, reach_cfg.object_height / 2)
+    half = reach_cfg.object_height / 2
+    if split:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, False, half, device=d) for d in jax.local_devices()]
+    else:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half)]
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
     writer = _MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
-    with ThreadPoolExecutor(1) as drawer:
-        ahead: Future | None = drawer.submit(draw_edges, reach, config, robot, *todo[0]) if todo else None
+    main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
+    jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
+
+    def job(kernels: EdgeKernels, a: int, b: int):
+        t0 = time.perf_counter()
+        draws = draw_edges(reach, config, robot, a, b)
+        t1 = time.perf_counter()
+        samples = solve_starts(draws, kernels, bar)
+        t2 = time.perf_counter()
+        idx, rolled = roll_out(samples, kernels, bar)
+        bar.update(b - a - len(idx))
+        for k, v in (("draw", t1 - t0), ("ik", t2 - t1), ("rollout", time.perf_counter() - t2)):
+            jobs[k] += v
+        return samples, idx, rolled
+
+    # Two threads per device (one process): while one prepares or collects a chunk, the
+    # other's work runs on the device.  Several processes launch in one agreed order: one.
+    threads = 2 if jax.process_count() == 1 else 1
+    pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
+    window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
+    try:
         for k, (a, b) in enumerate(todo):
-            assert ahead is not None
-            draws = ahead.result()
-            # the next chunk's draws (host work) while this one's starts and rollouts run
-            ahead = drawer.submit(draw_edges, reach, config, robot, *todo[k + 1]) if k + 1 < len(todo) else None
-            samples = solve_starts(draws, kernels, bar)
-            idx, rolled = roll_out(samples, kernels, bar)
-            bar.update(b - a - len(idx))
-            if writer is not None:
-                writer.put(samples, idx, rolled)
-    edge_seconds = time.perf_counter() - t1 - kernels.compile_seconds
+            i = k % len(kernel_sets)
+            window.append(pools[i].submit(job, kernel_sets[i], a, b))
+            while len(window) >= threads * len(kernel_sets) or (window and k == len(todo) - 1):
+                t = time.perf_counter()
+                samples, idx, rolled = window.popleft().result()
+                t2 = time.perf_counter()
+                if writer is not None:
+                    writer.put(samples, idx, rolled)
+                main["wait"] += t2 - t
+                main["hand_over"] += time.perf_counter() - t2
+    finally:
+        for pool in pools:
+            pool.shutdown(wait=not window, cancel_futures=True)
+    compile_seconds = max(ks.compile_seconds for ks in kernel_sets)  # the devices compile side by side
+    edge_seconds = time.perf_counter() - t1 - compile_seconds
     summary = {"device": device, "devices": devices, "processes": jax.process_count()}
     if writer is not None:
-        summary |= writer.finish(out, kernels, edge_seconds, device)
+        summary |= writer.finish(out, _totals(kernel_sets), edge_seconds, device)
         summary["reach_seconds"] = t_reach
+        # from the first chunk to the finished file, compilation excluded
+        summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
+        summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
+        summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
     bar.close()
     return summary
 
@@ -342,15 +389,18 @@ class _MapWriter:
         self.saved = set(done)
         self.packers = packer_threads()
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
-        # packed or being packed, in order: a computed chunk's units and a few more
+        # packed or being packed, in order: a computed chunk's units and 4 more (host memory)
         most = max((b - a for a, b in todo), default=1)
-        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + self.packers)
+        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + 4)
         self.error: BaseException | None = None
         self.tmp = folder / "map.h5.tmp"
         self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
         self.totals = {"counts": np.zeros(reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()), np.int64),
                        "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
         self.t_write = self.t_pack = self.t_wait = 0.0
+        # the writer thread's and the packers' time, part by part
+        self.parts = {"writer_waits": 0.0, "write_states": 0.0, "write_edges": 0.0, "pack": 0.0, "save": 0.0,
+                      "drain": 0.0}  # fmt: skip
         self.thread = threading.Thread(target=self._run, name="lmjx-map-writer", daemon=True)
         self.thread.start()
 
@@ -376,8 +426,12 @@ class _MapWriter:
     def _pack(self, samples, idx, rolled) -> EdgeChunk:
         t0 = time.perf_counter()
         chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
+        t1 = time.perf_counter()
         _save(self.folder, chunk)
-        self.t_pack += time.perf_counter() - t0  # summed over the packers: CPU seconds
+        t2 = time.perf_counter()
+        self.t_pack += t2 - t0  # summed over the packers: CPU seconds
+        self.parts["pack"] += t1 - t0
+        self.parts["save"] += t2 - t1
         return chunk
 
     def _run(self) -> None:
@@ -386,7 +440,9 @@ class _MapWriter:
             write_head(self.file, self.robot, self.reach, with_edges=True)
             self.w = EdgeWriter(self.file, self.config, self.reach, self.robot.nq)
             for a, b in self.ranges:
+                t0 = time.perf_counter()
                 chunk = _load(self.folder, a, b) if (a, b) in self.saved else self.queue.get().result()
+                self.parts["writer_waits"] += time.perf_counter() - t0
                 t0 = time.perf_counter()
                 self._append(chunk)
                 self.t_write += time.perf_counter() - t0
@@ -396,7 +452,9 @@ class _MapWriter:
     def _append(self, c: EdgeChunk) -> None:
         t = self.totals
         t["first_edge"].append(self.w.n_edges)
+        t0 = time.perf_counter()
         self.w.add_states(c.q, c.qd, c.p)
+        t1 = time.perf_counter()
         starts = np.concatenate([[0], np.cumsum(c.length)[:-1]]).astype(np.int64)
         q_start = c.q[starts] if len(c.length) else np.zeros((0, self.robot.nq), np.float32)
         self.w.add_edges({name: q_start if name == "q_start" else getattr(c, name) for name in PER_EDGE})
@@ -405,9 +463,15 @@ class _MapWriter:
         t["rolled_out"] += c.rolled_out
         t["evaluated"] += c.states_evaluated
         t["states"] += len(c.q)
+        self.parts["write_states"] += t1 - t0
+        self.parts["write_edges"] += time.perf_counter() - t1
 
-    def finish(self, out: Path, kernels: EdgeKernels, edge_seconds: float, device: str) -> dict:
+    def finish(self, out: Path, kernels: dict, edge_seconds: float, device: str) -> dict:
+        """Wait for the last chunks, write the spatial index, move the map to `out`;
+        `kernels`: the programs' figures (`_totals`)."""
+        t0 = time.perf_counter()
         self.thread.join()
+        self.parts["drain"] = time.perf_counter() - t0  # the writer's work left when the rollouts end
         self.pool.shutdown()
         if self.error is not None:
             raise self.error
@@ -424,8 +488,8 @@ class _MapWriter:
                 "edges_sampled": self.n,
                 "rejected": rejected,
                 "seconds": edge_seconds,
-                "compile_seconds": kernels.compile_seconds,
-                "rollout_seconds": kernels.rollout.kernel_seconds,
+                "compile_seconds": kernels["compile_seconds"],
+                "rollout_seconds": kernels["rollout_seconds"],
                 "edge_steps": steps,
                 "states_evaluated": t["evaluated"],
                 "device": device,
@@ -443,19 +507,36 @@ class _MapWriter:
             "edge_steps": steps,
             "states_evaluated": t["evaluated"],
             "seconds": round(edge_seconds, 4),
-            "rollout_seconds": round(kernels.rollout.kernel_seconds, 4),
-            "rollout_timing": {k: round(v, 4) for k, v in kernels.rollout.timing.items()},
-            "rollout_copied_bytes": kernels.rollout.copied_bytes,
-            "ik_seconds": round(kernels.ik.kernel_seconds, 4),
-            "compile_seconds": round(kernels.compile_seconds, 4),
+            "rollout_seconds": round(kernels["rollout_seconds"], 4),
+            "rollout_timing": {k: round(v, 4) for k, v in kernels["rollout_timing"].items()},
+            "rollout_copied_bytes": kernels["rollout_copied_bytes"],
+            "ik_seconds": round(kernels["ik_seconds"], 4),
+            "compile_seconds": round(kernels["compile_seconds"], 4),
             "write_seconds": round(self.t_write, 4),
             "pack_seconds": round(self.t_pack, 4),
             "packers": self.packers,
             "wait_seconds": round(self.t_wait, 4),
             "finish_seconds": round(time.perf_counter() - t0, 4),
-            "edge_steps_per_s": round(steps / max(kernels.rollout.kernel_seconds, 1e-9), 1),
+            "writer_timing": {k: round(v, 4) for k, v in self.parts.items()},
+            "edge_steps_per_s": round(steps / max(kernels["rollout_seconds"], 1e-9), 1),
             **sizes,
         }
+
+
+def _totals(kernel_sets: list[EdgeKernels]) -> dict:
+    """The build's kernel figures: compilation as the longest of the devices' (they compile
+    side by side), run times summed over the devices (device-seconds)."""
+    timing: dict[str, float] = {}
+    for ks in kernel_sets:
+        for k, v in ks.rollout.timing.items():
+            timing[k] = timing.get(k, 0.0) + v
+    return {
+        "compile_seconds": max(ks.compile_seconds for ks in kernel_sets),
+        "rollout_seconds": sum(ks.rollout.kernel_seconds for ks in kernel_sets),
+        "rollout_timing": timing,
+        "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets),
+        "ik_seconds": sum(ks.ik.kernel_seconds for ks in kernel_sets),
+    }
 
 
 def _write_index_edges(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -48,6 +49,7 @@ class IKBatch:
         0/1 mask; the locked joints' initial angles are their lock angles): one program
         for every failure (`lmjx.atlas`).  `failure` is then ignored.
       sharded: split each chunk over all devices (`lmjx.sharding`); `chunk` is per device.
+      device: run on this device (rather than JAX's default one); not with `sharded`.
     """
 
     robot: Robot
@@ -58,6 +60,7 @@ class IKBatch:
     traced_locks: bool = False
     masked: bool = False
     sharded: bool = False
+    device: Any = None
     _kernel: ChunkedKernel | None = field(default=None, repr=False)
 
     @property
@@ -91,14 +94,27 @@ class IKBatch:
                 return ik_check(arm, settings, free, q_any, sites, target, site, pm, q)
 
             inputs.append((np.float32, (len(free),)))
-            return ChunkedKernel((*key, "masked"), one_masked, [], inputs, self.chunk, sharded=self.sharded)
+            return ChunkedKernel((*key, "masked"), one_masked, [], inputs, self.chunk, sharded=self.sharded,
+                                 device=self.device)  # fmt: skip
         q_fixed = self.failure.q_fixed(self.robot.nq)
         if self.traced_locks:
             return ChunkedKernel(
-                (*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk, sharded=self.sharded
+                (*key, "traced"),
+                one,
+                [q_fixed.astype(np.float32)],
+                inputs,
+                self.chunk,
+                sharded=self.sharded,
+                device=self.device,
             )
         return ChunkedKernel(
-            (*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk, sharded=self.sharded
+            (*key, tuple(q_fixed)),
+            lambda *a: one(q_fixed, *a),
+            [],
+            inputs,
+            self.chunk,
+            sharded=self.sharded,
+            device=self.device,
         )
 
     def solve(

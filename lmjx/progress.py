@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 from tqdm import tqdm
 
 
 class Progress:
-    """A thin tqdm wrapper whose methods are no-ops when disabled."""
+    """A thin tqdm wrapper whose methods are no-ops when disabled; `update` may be called
+    from several threads."""
 
     def __init__(self, total: int | None, desc: str, enabled: bool = True, unit: str = "IK") -> None:
         forced = os.environ.get("LMJX_PROGRESS") == "1"
@@ -28,10 +30,12 @@ class Progress:
             if on
             else None
         )
+        self._lock = threading.Lock()
 
     def update(self, n: int) -> None:
         if self._bar is not None:
-            self._bar.update(n)
+            with self._lock:
+                self._bar.update(n)
 
     def set_description(self, desc: str) -> None:
         if self._bar is not None:

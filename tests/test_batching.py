@@ -47,6 +47,13 @@ def test_kept_rows_are_the_host_selection(n, chunk, frac):
     block_bytes = -(-chunk // KEEP_BLOCKS) * 5 * 3 * 4
     plain = launches * chunk * (1 + 4)  # keep (bool) and score (float32) come back whole
     assert k.copied_bytes <= plain + want["traj"].nbytes + launches * block_bytes
+    # kept rows placed where `kept_dest` says (each copied once, straight to its row)
+    dest = np.random.default_rng(1).permutation(int(want["keep"].sum()))
+    seen = []
+    placed = k.run(x, kept_dest=lambda keep: seen.append(keep.copy()) or dest)
+    np.testing.assert_array_equal(seen[0], want["keep"])
+    np.testing.assert_array_equal(placed["traj"][dest], want["traj"])
+    np.testing.assert_array_equal(placed["keep"], want["keep"])
 
 
 def test_without_keep_every_row_comes_back():
@@ -64,7 +71,8 @@ def test_empty_batch_has_the_result_shapes():
 
 
 def test_kept_rows_from_several_devices():
-    """The same on 3 host devices (a sharded kernel: each device compacts its own rows)."""
+    """The same on 3 host devices (a sharded kernel: each device compacts its own rows), and
+    with the kernel bound to one of them."""
     import os
     import subprocess
     import sys
@@ -84,6 +92,14 @@ for n, chunk, frac in [(100, 7, 0.5), (500, 40, 0.3), (64, 64, 1.0), (50, 20, 0.
                       keep_by="keep", kept=("traj",))
     assert k.mesh is not None and k.mesh.size == 3
     got, want = k.run(x), _reference(x)
+    assert np.array_equal(got["traj"], want["traj"]) and np.array_equal(got["keep"], want["keep"]), (n, chunk)
+    # the one-device program bound to the third device (a build's per-device kernels)
+    import jax
+    k = ChunkedKernel(("t3", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",),
+                      device=jax.devices()[2])
+    assert k.mesh is None
+    got = k.run(x)
+    assert k._fn.input_shardings[0][0].device_set == {jax.devices()[2]}
     assert np.array_equal(got["traj"], want["traj"]) and np.array_equal(got["keep"], want["keep"]), (n, chunk)
 print("ok")
 """

@@ -93,6 +93,9 @@ def test_killed_build_resumes_to_the_uninterrupted_file(streamed, tmp_path):
     assert not out.exists()
     kept = sorted(partial.glob("edges-*.npz"))
     assert len(kept) >= 2
+    # chunk files are not synced to disk: one a machine crash damaged is computed again
+    with open(kept[0], "r+b") as fh:
+        fh.truncate(100)
     _, _err = _run(["build-map", *SMALL, "--chunk", "150", "--out", str(out)])
     assert same_datasets(streamed, out) == []
     assert not partial.exists()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lmjx.lazystates import StateReader
-from lmjx.mapfile import STATE_ROWS, _compress_rows
+from lmjx.mapfile import STATE_ROWS, _write_chunks
 
 
 @pytest.fixture(scope="module")
@@ -21,8 +21,10 @@ def states_file(tmp_path_factory):
     with h5py.File(path, "w") as f:
         ds = f.create_dataset("lmjx", shape=(n, 7), dtype=np.float32, chunks=(STATE_ROWS, 7),
                               compression="gzip", compression_opts=4, shuffle=True)  # fmt: skip
-        for a in range(0, n, STATE_ROWS):
-            ds.id.write_direct_chunk((a, 0), _compress_rows(data[a : a + STATE_ROWS], 7), 0)
+        # two pieces per chunk, as the writer gets them; the first two chunks in one job
+        chunks = [(a, [data[a : a + 100], data[a + 100 : a + STATE_ROWS]]) for a in range(0, n, STATE_ROWS)]
+        _write_chunks(ds, chunks[:2], STATE_ROWS, ds.dtype)
+        _write_chunks(ds, chunks[2:], STATE_ROWS, ds.dtype)
         f.create_dataset("h5py", data=data, chunks=(1000, 7), compression="gzip", shuffle=True)
         f.create_dataset("lzf", data=data, chunks=(1000, 7), compression="lzf")
     return path, data
