@@ -5,17 +5,19 @@ The work, for a map `<out>`:
      (`RATES`); a file system without the room for it stops the build before it starts,
      and a build of more than a day needs `yes=True` (`--yes`);
   2. the Reach-Ability map, kept in `<out>.partial/reach.h5`;
-  3. the edges in chunks [a, b) of the sampling order: a chunk is drawn (on a helper thread,
-     ahead of time), solved and rolled out on the accelerators; a writer thread packs its
-     valid edges with their spatial-index entries (`bundle.EdgeChunk`), saves them to
-     `<out>.partial/edges-<a>-<b>.npz` (atomically) and appends them to the map being
-     written in the partial folder (states compressed on all cores: `mapfile.EdgeWriter`),
-     while the next chunk computes;
+  3. the edges in chunks [a, b) of the sampling order: two host threads per device each
+     take whole chunks, drawing, solving and rolling them out on their device (while one
+     prepares or collects, the other's work runs); in edge order, packers pack each chunk's
+     valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them,
+     byte-shuffled and deflated, to `<out>.partial/edges-<a>-<b>.npz` (atomically), and a
+     writer thread appends them to the map being written in the partial folder (every
+     dataset compressed and written on all cores: `mapfile.EdgeWriter`);
   4. at the end the spatial index (sorted cell range by cell range, `INDEX_PAIRS` pairs at
      a time, from the saved chunks), then the map is renamed to `<out>` and the partial
      folder removed.
-Memory stays bounded whatever the number of edges: two chunks on the host at most, one
-index range at the end.  Disk: the partial chunks (uncompressed) and the map side by side.
+Memory stays bounded whatever the number of edges: two chunks per device in flight, a few
+packing units, one index range at the end.  Disk: the partial chunks and the map side by
+side.
 
 Resumable: killed at any point (kill -9 included), the same command starts again from what
 `<out>.partial` holds: saved chunks are kept (and read back into the map in their turn),
@@ -24,9 +26,11 @@ chunk size is not part of the result: edges are drawn from counter-based streams
 (`bundle.edge_uniforms`), so the same seed gives the same datasets for any chunking and any
 number of devices or processes.
 
-Several devices: every launch is split over all local devices (`sharding`); several hosts:
-`jax.distributed` (`sharding.init_distributed`), every process computes its share, process
-0 reads and writes the files and tells the others which chunks are left.
+Several devices of one process: each runs whole chunks with its own programs and threads,
+so the host work of preparing and collecting launches grows with the devices too.  Several
+hosts: `jax.distributed` (`sharding.init_distributed`), every launch split over all devices
+(`sharding`), every process computes its share, process 0 reads and writes the files and
+tells the others which chunks are left.
 """
 
 from __future__ import annotations
@@ -394,11 +398,11 @@ def build_map(
 class _MapWriter:
     """Process 0's map writing, beside the accelerators: `packers` threads pack computed
     chunks and save them to the partial folder (atomically), several at once (numpy and
-    zlib release the interpreter lock, and on a GPU this host work, not the rollouts, sets
-    the pace); one thread appends them, in edge order, to the map being written there
-    (saved chunks of an earlier run are read back in their turn).  At the end: the spatial
-    index, then the map renamed to `out` and the partial folder removed.  At most
-    2 x `packers` computed chunks are held at a time."""
+    the compressor release the interpreter lock, and on a GPU this host work, not the
+    rollouts, sets the pace); one thread appends them, in edge order, to the map being
+    written there (saved chunks of an earlier run are read back in their turn).  At the
+    end: the spatial index, then the map renamed to `out` and the partial folder removed.
+    At most a computed chunk's packing units and 4 more are held at a time."""
 
     def __init__(
         self,
