@@ -3,11 +3,12 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m shardscale decision uratlas; planner, gputests, evalgpu and decision need
+# warm100k edges5m shard5m shardscale threads5m decision uratlas; planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
-# from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl); 'maps'
+# from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl), with isal's cp312
+# wheel beside them (pip download --no-deps --python-version 3.12 --only-binary=:all: -d .whl isal); 'maps'
 # compares with CPU maps carried in out/cpu_maps.
 set -uo pipefail
 OUT=${OUT:-$PWD/out/gpu}
@@ -126,6 +127,15 @@ for step in $steps; do
         --out "$WORK/case2_5M_all.h5" --json > "$OUT/build5m_all.json" 2> "$WORK/build5m_all.err"
       grep -aE "Elapsed|Maximum resident" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
       timeout 200 python3 benchmarks/same_map.py "$WORK/maps/case2_5M.h5" "$WORK/case2_5M_all.h5" ;;
+    threads5m)
+      # Issue 10: where the threads of a 5M build stand (lmjx/threadprof.py), on 1 GPU, then on all.
+      for mode in --no-shard ""; do
+        tag=${mode:+_1gpu}
+        LMJX_THREAD_PROFILE="$OUT/threads5m${tag:-_all}.json" timeout 300 python3 -m lmjx.cli build-map \
+          --failure case2 --edges 5000000 $mode --out "$WORK/t5m.h5" --json > "$OUT/build5m_threads${tag:-_all}.json" \
+          2> /dev/null; rm -f "$WORK/t5m.h5"
+        python3 -c "import json; d = json.load(open('$OUT/threads5m${tag:-_all}.json'))['groups']; [print(g, v['samples'], v['top'][:3]) for g, v in d.items()]"
+      done ;;
     shardscale)
       # Issue 10: the rollout program alone on 1 and on every GPU, and the device-to-host copy rate.
       timeout 300 python3 benchmarks/shard_scaling.py --edges 2000000 --out "$OUT/scaling.json" 2>&1 | tail -3 ;;

@@ -48,7 +48,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import __version__
+from . import __version__, threadprof
 from .batching import device_description
 from .bundle import (
     BundleConfig,
@@ -364,6 +364,7 @@ def build_map(
     # Two threads per device (one process): while one prepares or collects a chunk, the
     # other's work runs on the device.  Several processes launch in one agreed order: one.
     threads = 2 if jax.process_count() == 1 else 1
+    sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
     try:
@@ -391,6 +392,7 @@ def build_map(
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
+    threadprof.write_report(sampler)
     bar.close()
     return summary
 

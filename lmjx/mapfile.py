@@ -193,7 +193,7 @@ class EdgeWriter:
                                          STATE_ROWS)  # fmt: skip
         self.rows = 0  # states given
         self.threads = threads or os.cpu_count() or 1
-        self.pool = ThreadPoolExecutor(self.threads)
+        self.pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lmjx-write")
         # chunks being compressed and written by the pool, so the caller goes on while the
         # pool works (at most `4 x threads` in flight)
         self.inflight: collections.deque = collections.deque()  # (chunks, job)

@@ -57,8 +57,17 @@ def same_datasets(a, b) -> list[str]:
 def streamed(tmp_path_factory):
     """The small map streamed in chunks of 400 edges."""
     path = tmp_path_factory.mktemp("stream") / "a.h5"
-    _run(["build-map", *SMALL, "--chunk", "400", "--out", str(path)])
+    _run(["build-map", *SMALL, "--chunk", "400", "--out", str(path)],
+         env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))})  # fmt: skip
     return path
+
+
+def test_a_build_reports_where_its_threads_are(streamed):
+    """LMJX_THREAD_PROFILE: the sampled threads of the build, grouped, each with its places."""
+    groups = json.loads(streamed.with_name("threads.json").read_text())["groups"]
+    assert {"MainThread", "lmjx-chunk", "lmjx-map-writer", "lmjx-pack", "lmjx-write"} <= set(groups)
+    chunk = [where for where, _ in groups["lmjx-chunk"]["top"]]
+    assert any(w.split(":")[0] in ("batching.py", "bundle.py", "edgestream.py", "ik_batch.py") for w in chunk)
 
 
 def test_chunk_size_and_memory_do_not_change_the_datasets(robot, streamed, tmp_path):
