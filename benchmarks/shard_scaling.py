@@ -89,21 +89,17 @@ def _copies(rows: int) -> dict:
     _ = asarray_all(_fresh(rows, devs[:1]))  # warm-up
     res["asarray_one"] = asarray_all(_fresh(rows, devs[:1]))
     res["asarray_all"] = asarray_all(_fresh(rows, devs))
-    arrs = _fresh(rows, devs)
-    t0 = time.perf_counter()
-    for a in arrs:
-        a.copy_to_host_async()
-    for a in arrs:
-        np.asarray(a)
-    res["async_then_asarray_all"] = rate(arrs, time.perf_counter() - t0)
-    pieces = [jax.device_put(np.full((rows // 16, 101, 13), 1.5, np.float32), d) for d in devs for _ in range(16)]
-    jax.block_until_ready(pieces)
-    t0 = time.perf_counter()
-    for a in pieces:
-        a.copy_to_host_async()
-    for a in pieces:
-        np.asarray(a)
-    res["pieces16_async_all"] = rate(pieces, time.perf_counter() - t0)
+
+    def async_all(arrs) -> float:
+        t0 = time.perf_counter()
+        for a in arrs:
+            a.copy_to_host_async()
+        for a in arrs:
+            np.asarray(a)
+        return rate(arrs, time.perf_counter() - t0)
+
+    res["async_then_asarray_all"] = async_all(_fresh(rows, devs))
+    res["pieces16_async_all"] = async_all([p for _ in range(16) for p in _fresh(rows // 16, devs)])
     try:
         from jax.sharding import SingleDeviceSharding
 

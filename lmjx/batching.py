@@ -163,8 +163,8 @@ class ChunkedKernel:
         self.compile_seconds = 0.0
         self.kernel_seconds = 0.0  # time in kernel calls and transfers, compilation excluded
         # where run()'s time goes when results come back: waiting for the device, copying to
-        # the host, selecting rows (the rest: preparing and dispatching launches)
-        self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0}
+        # the host, selecting rows, placing kept rows (the rest: preparing and dispatching)
+        self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0, "place": 0.0}
         self.copied_bytes = 0  # copied off the devices by run()
         self._fn: Callable | None = None
         self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}  # the program's outputs
@@ -353,7 +353,7 @@ class ChunkedKernel:
         if self.kept:
             t1 = time.perf_counter()
             whole |= self._place(kept_parts, whole[self.keep_by].astype(bool), kept_dest, results)
-            self.timing["place"] = self.timing.get("place", 0.0) + time.perf_counter() - t1
+            self.timing["place"] += time.perf_counter() - t1
         self.kernel_seconds += time.perf_counter() - t0
         return whole
 

@@ -86,6 +86,7 @@ class IKBatch:
 
         inputs = [(np.float32, (4,)), (np.int32, ()), (np.bool_, ()), (np.float32, (len(free),))]
         key = ("ik", self.robot.model_hash, free, sites, settings)
+        where = {"sharded": self.sharded, "device": self.device}
         if self.masked:
             q_any = np.zeros(self.robot.nq)  # every joint is "free": no angle is read from here
 
@@ -94,28 +95,11 @@ class IKBatch:
                 return ik_check(arm, settings, free, q_any, sites, target, site, pm, q)
 
             inputs.append((np.float32, (len(free),)))
-            return ChunkedKernel((*key, "masked"), one_masked, [], inputs, self.chunk, sharded=self.sharded,
-                                 device=self.device)  # fmt: skip
+            return ChunkedKernel((*key, "masked"), one_masked, [], inputs, self.chunk, **where)
         q_fixed = self.failure.q_fixed(self.robot.nq)
         if self.traced_locks:
-            return ChunkedKernel(
-                (*key, "traced"),
-                one,
-                [q_fixed.astype(np.float32)],
-                inputs,
-                self.chunk,
-                sharded=self.sharded,
-                device=self.device,
-            )
-        return ChunkedKernel(
-            (*key, tuple(q_fixed)),
-            lambda *a: one(q_fixed, *a),
-            [],
-            inputs,
-            self.chunk,
-            sharded=self.sharded,
-            device=self.device,
-        )
+            return ChunkedKernel((*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk, **where)
+        return ChunkedKernel((*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk, **where)
 
     def solve(
         self,
