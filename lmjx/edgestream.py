@@ -8,21 +8,20 @@ The work, for a map `<out>`:
   3. the edges in chunks [a, b) of the sampling order: two host threads per device each
      take whole chunks, drawing, solving and rolling them out on their device (while one
      prepares or collects, the other's work runs); in edge order, packers pack each chunk's
-     valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them,
-     byte-shuffled and deflated, to `<out>.partial/edges-<a>-<b>.npz` (atomically), and a
-     writer thread appends them to the map being written in the partial folder (every
-     dataset compressed and written on all cores: `mapfile.EdgeWriter`);
-  4. at the end the spatial index (sorted cell range by cell range, `INDEX_PAIRS` pairs at
-     a time, from the saved chunks), then the map is renamed to `<out>` and the partial
-     folder removed.
+     valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them to
+     `<out>.partial/edges-<a>-<b>.chunk` (`chunkfile`), and a process of its own appends
+     them to the map being written in the partial folder (`mapwriter`);
+  4. at the end, in that process, the spatial index (sorted cell range by cell range,
+     from the saved chunks); then the map is renamed to `<out>` and the partial folder
+     removed.
 Memory stays bounded whatever the number of edges: two chunks per device in flight, a few
-packing units, one index range at the end.  Disk: the partial chunks and the map side by
-side.
+packing units, a few chunks read ahead by the writing process, one index range at the end.
+Disk: the partial chunks and the map side by side.
 
 Resumable: killed at any point (kill -9 included), the same command starts again from what
 `<out>.partial` holds: saved chunks are kept (and read back into the map in their turn),
-missing ones computed; a build with other parameters refuses to touch it.  Ctrl-C leaves nothing at `<out>`.  The
-chunk size is not part of the result: edges are drawn from counter-based streams
+missing ones computed; a build with other parameters refuses to touch it.  Ctrl-C leaves
+nothing at `<out>`.  The chunk size is not part of the result: edges are drawn from counter-based streams
 (`bundle.edge_uniforms`), so the same seed gives the same datasets for any chunking and any
 number of devices or processes.
 
@@ -38,56 +37,45 @@ from __future__ import annotations
 import collections
 import json
 import os
-import re
 import shutil
+import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from . import __version__, threadprof
 from .batching import device_description
 from .bundle import (
     BundleConfig,
-    EdgeChunk,
     EdgeKernels,
     chunk_ranges,
     draw_edges,
-    pack_chunk,
-    reasons,
     roll_out,
     solve_starts,
-    split_rolled,
 )
+from .chunkfile import saved_chunks
 from .errors import ConfigError, OutputPathError
 from .failure import Failure
 from .fileio import check_writable
 from .mapfile import (
-    DEFLATE_LEVEL,
-    PER_EDGE,
-    EdgeWriter,
-    deflate,
     load_map,
-    write_head,
-    write_index,
     write_reach_map,
 )
+from .mapwriter import MapWriter
 from .progress import Progress
 from .reach import ReachConfig, ReachResult, reach_map
 from .robot import Robot
 
-INDEX_PAIRS = 32 * 2**20  # spatial-index pairs sorted at a time when assembling (256 MB)
-CHUNK_FILE = re.compile(r"^edges-(\d+)-(\d+)\.npz$")
 # Measured rates for the preflight (benchmarks/RESULTS.md): edges per second after
 # compilation, per accelerator or per CPU core, and what the files take per sampled edge
 # (case 2: a quarter of the sampled edges are kept, 51 states each).
 RATES = {"gpu": 60_000.0, "cpu_core": 170.0}
 COMPILE_SECONDS = {"gpu": 40.0, "cpu": 60.0}
 MAP_BYTES_PER_EDGE = 620.0  # the finished map
-PARTIAL_BYTES_PER_EDGE = 600.0  # the chunks in <out>.partial, shuffled and deflated (567 measured)
+PARTIAL_BYTES_PER_EDGE = 900.0  # the chunks in <out>.partial (raw arrays; case 2: about 885)
 DAY = 86_400.0
 
 
@@ -146,16 +134,6 @@ def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
     )
 
 
-# Sampled edges packed (and saved to the partial folder) at a time; not part of the result
-# (LMJX_PACK_EDGES overrides it: the tests use small units).
-PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
-
-
-def packer_threads() -> int:
-    """Threads packing computed chunks: a third of the host's cores, 1 to 12."""
-    return max(1, min(12, (os.cpu_count() or 1) // 3))
-
-
 def partial_path(out: str | Path) -> Path:
     out = Path(out)
     return out.with_name(out.name + ".partial")
@@ -180,27 +158,6 @@ def _plan(robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: Bundle
     )
 
 
-def saved_chunks(folder: Path) -> list[tuple[int, int]]:
-    """The chunk ranges saved in a partial folder, in order (temporary files removed, and
-    damaged ones: a chunk's file is not synced to disk, so a crash of the machine, unlike a
-    killed build, may leave one unreadable; it is computed again)."""
-    ranges = []
-    for f in folder.iterdir():
-        m = CHUNK_FILE.match(f.name)
-        if m:
-            try:
-                with np.load(f) as z:
-                    if set(z.files) != {"meta", *EdgeChunk.ARRAYS}:
-                        raise ValueError(f"{f.name}: not a whole chunk")
-            except Exception:  # whatever is wrong with it, it is redone
-                f.unlink(missing_ok=True)
-                continue
-            ranges.append((int(m.group(1)), int(m.group(2))))
-        elif f.name.startswith(".") and f.name.endswith(".tmp"):
-            f.unlink(missing_ok=True)  # a save a kill interrupted
-    return sorted(ranges)
-
-
 def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple[int, int]]:
     """Ranges of [0, n) not covered by `done` (disjoint, sorted), cut into chunks of `size`."""
     todo, at = [], 0
@@ -212,45 +169,12 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
     return todo + chunk_ranges(n, size, at)
 
 
-def _save(folder: Path, chunk: EdgeChunk) -> None:
-    """A packed chunk into the partial folder, atomically (a killed build leaves it whole
-    or absent), each array byte-shuffled and deflated (`_squeeze`: 567 bytes per sampled
-    edge where the plain arrays took about 960).  Not synced to disk chunk by chunk, which
-    made every chunk wait for the disk (see `saved_chunks` for a machine crash)."""
-    path = folder / f"edges-{chunk.start}-{chunk.stop}.npz"
-    tmp = folder / f".{path.name}.{os.getpid()}.tmp"
-    arrays = {k: np.ascontiguousarray(getattr(chunk, k)) for k in EdgeChunk.ARRAYS}
-    meta = {"rolled_out": chunk.rolled_out, "states_evaluated": chunk.states_evaluated, "seconds": chunk.seconds,
-            "arrays": {k: [a.dtype.str, list(a.shape)] for k, a in arrays.items()}}  # fmt: skip
-    with open(tmp, "wb") as fh:
-        np.savez(fh, meta=np.array(json.dumps(meta)), **{k: _squeeze(a) for k, a in arrays.items()})
-    os.replace(tmp, path)
-
-
-def _squeeze(a: np.ndarray) -> np.ndarray:
-    """The array's bytes, shuffled by byte position (as HDF5's shuffle filter) and deflated."""
-    shuffled = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
-    return np.frombuffer(deflate.compress(shuffled, DEFLATE_LEVEL), np.uint8)
-
-
-def _unsqueeze(z, name: str, meta: dict) -> np.ndarray:
-    dtype, shape = meta["arrays"][name]
-    dtype = np.dtype(dtype)
-    raw = np.frombuffer(deflate.decompress(z[name]), np.uint8)
-    return raw.reshape(dtype.itemsize, -1).T.copy().view(dtype).reshape(shape)
-
-
-def _arrays(folder: Path, a: int, b: int, names: tuple[str, ...]) -> tuple[dict, dict]:
-    """Arrays of a saved chunk, and its meta."""
-    with np.load(folder / f"edges-{a}-{b}.npz") as z:
-        meta = json.loads(str(z["meta"]))
-        return {k: _unsqueeze(z, k, meta) for k in names}, meta
-
-
-def _load(folder: Path, a: int, b: int) -> EdgeChunk:
-    arrays, meta = _arrays(folder, a, b, EdgeChunk.ARRAYS)
-    return EdgeChunk(start=a, stop=b, rolled_out=meta["rolled_out"], states_evaluated=meta["states_evaluated"],
-                     seconds=meta["seconds"], **arrays)  # fmt: skip
+# The interpreter's thread switch interval during a build.  Python's default, 5 ms, lets a
+# thread back from a C call that released the interpreter lock (a copy, a file write, a
+# device wait) wait up to 5 ms for it while a dozen others run Python code; measured on 2
+# H200s (benchmarks/RESULTS.md, issue 10): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
+# 0.5 ms; one GPU's unchanged.
+SWITCH_INTERVAL = 0.0005
 
 
 def build_map(
@@ -265,7 +189,27 @@ def build_map(
     say=print,
 ) -> dict:
     """Build (or finish) the map file `out`: reach map + edge bundle, streamed.  Returns a
-    summary (for the command line)."""
+    summary (for the command line).  The interpreter's switch interval is at most
+    `SWITCH_INTERVAL` meanwhile (restored after)."""
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, SWITCH_INTERVAL))
+    try:
+        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say)
+    finally:
+        sys.setswitchinterval(before)
+
+
+def _build_map(
+    out: Path | str,
+    failure: Failure,
+    reach_cfg: ReachConfig,
+    config: BundleConfig,
+    robot: Robot,
+    progress: bool,
+    sharded: bool,
+    yes: bool,
+    say,
+) -> dict:
     import jax
 
     from . import sharding
@@ -345,7 +289,7 @@ def build_map(
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
-    writer = _MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
+    writer = MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
     main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
     jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
 
@@ -379,6 +323,10 @@ def build_map(
                     writer.put(samples, idx, rolled)
                 main["wait"] += t2 - t
                 main["hand_over"] += time.perf_counter() - t2
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
     finally:
         for pool in pools:
             pool.shutdown(wait=not window, cancel_futures=True)
@@ -386,173 +334,19 @@ def build_map(
     edge_seconds = time.perf_counter() - t1 - compile_seconds
     summary = {"device": device, "devices": devices, "processes": jax.process_count()}
     if writer is not None:
-        summary |= writer.finish(out, _totals(kernel_sets), edge_seconds, device)
+        try:
+            summary |= writer.finish(out, _totals(kernel_sets), edge_seconds, device)
+        except BaseException:
+            writer.abort()
+            raise
         summary["reach_seconds"] = t_reach
         # from the first chunk to the finished file, compilation excluded
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
-    threadprof.write_report(sampler)
+    threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
     return summary
-
-
-class _MapWriter:
-    """Process 0's map writing, beside the accelerators: `packers` threads pack computed
-    chunks and save them to the partial folder (atomically), several at once (numpy and
-    the compressor release the interpreter lock, and on a GPU this host work, not the
-    rollouts, sets the pace); one thread appends them, in edge order, to the map being
-    written there (saved chunks of an earlier run are read back in their turn).  At the
-    end: the spatial index, then the map renamed to `out` and the partial folder removed.
-    At most a computed chunk's packing units and 4 more are held at a time."""
-
-    def __init__(
-        self,
-        folder: Path,
-        reach: ReachResult,
-        config: BundleConfig,
-        robot: Robot,
-        n: int,
-        done: list[tuple[int, int]],
-        todo: list[tuple[int, int]],
-    ) -> None:
-        import queue
-        import threading
-
-        self.folder, self.reach, self.config, self.robot, self.n = folder, reach, config, robot, n
-        units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
-        self.ranges = sorted(done + units)
-        self.saved = set(done)
-        self.packers = packer_threads()
-        self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
-        # packed or being packed, in order: a computed chunk's units and 4 more (host memory)
-        most = max((b - a for a, b in todo), default=1)
-        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + 4)
-        self.error: BaseException | None = None
-        self.tmp = folder / "map.h5.tmp"
-        self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
-        self.totals = {"counts": np.zeros(reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()), np.int64),
-                       "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
-        self.t_wait = 0.0
-        # the writer thread's and the packers' time, part by part
-        self.parts = {"writer_waits": 0.0, "write_states": 0.0, "write_edges": 0.0, "pack": 0.0, "save": 0.0,
-                      "drain": 0.0}  # fmt: skip
-        self.thread = threading.Thread(target=self._run, name="lmjx-map-writer", daemon=True)
-        self.thread.start()
-
-    def put(self, samples, idx, rolled) -> None:
-        """Hand over a computed chunk, packed in units of `PACK_EDGES` sampled edges (blocks
-        while the queue is full: a chunk's units and `packers` more)."""
-        import queue
-
-        t0 = time.perf_counter()
-        n = len(samples.which)
-        for a, b in chunk_ranges(samples.start + n, PACK_EDGES, samples.start):
-            job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
-            while True:
-                if not self.thread.is_alive():
-                    raise self.error or RuntimeError("the map writer stopped")
-                try:
-                    self.queue.put(job, timeout=0.5)
-                    break
-                except queue.Full:
-                    continue
-        self.t_wait += time.perf_counter() - t0
-
-    def _pack(self, samples, idx, rolled) -> EdgeChunk:
-        t0 = time.perf_counter()
-        chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
-        t1 = time.perf_counter()
-        _save(self.folder, chunk)
-        self.parts["pack"] += t1 - t0  # summed over the packers: CPU seconds
-        self.parts["save"] += time.perf_counter() - t1
-        return chunk
-
-    def _run(self) -> None:
-        try:
-            self.file = h5py.File(self.tmp, "w", track_order=True)
-            write_head(self.file, self.robot, self.reach, with_edges=True)
-            self.w = EdgeWriter(self.file, self.config, self.reach, self.robot.nq)
-            for a, b in self.ranges:
-                t0 = time.perf_counter()
-                chunk = _load(self.folder, a, b) if (a, b) in self.saved else self.queue.get().result()
-                self.parts["writer_waits"] += time.perf_counter() - t0
-                self._append(chunk)
-        except BaseException as e:  # handed to the main thread
-            self.error = e
-
-    def _append(self, c: EdgeChunk) -> None:
-        t = self.totals
-        t["first_edge"].append(self.w.n_edges)
-        t0 = time.perf_counter()
-        self.w.add_states(c.q, c.qd, c.p)
-        t1 = time.perf_counter()
-        starts = np.concatenate([[0], np.cumsum(c.length)[:-1]]).astype(np.int64)
-        q_start = c.q[starts] if len(c.length) else np.zeros((0, self.robot.nq), np.float32)
-        self.w.add_edges({name: q_start if name == "q_start" else getattr(c, name) for name in PER_EDGE})
-        t["counts"] += np.bincount(c.index_cell, minlength=len(t["counts"]))
-        t["rejected"] += c.rejected
-        t["rolled_out"] += c.rolled_out
-        t["evaluated"] += c.states_evaluated
-        t["states"] += len(c.q)
-        self.parts["write_states"] += t1 - t0
-        self.parts["write_edges"] += time.perf_counter() - t1
-
-    def finish(self, out: Path, kernels: dict, edge_seconds: float, device: str) -> dict:
-        """Wait for the last chunks, write the spatial index, move the map to `out`;
-        `kernels`: the programs' figures (`_totals`)."""
-        t0 = time.perf_counter()
-        self.thread.join()
-        self.parts["drain"] = time.perf_counter() - t0  # the writer's work left when the rollouts end
-        self.pool.shutdown()
-        if self.error is not None:
-            raise self.error
-        t0 = time.perf_counter()
-        t = self.totals
-        offset = np.zeros(len(t["counts"]) + 1, np.int64)
-        offset[1:] = np.cumsum(t["counts"])
-        ds = write_index(self.w.group, self.reach, offset, None)
-        _write_index_edges(ds, self.folder, self.ranges, t["first_edge"], offset)
-        rejected = {r: int(k) for r, k in zip(reasons(), t["rejected"], strict=True)}
-        steps = t["rolled_out"] * self.config.steps
-        sizes = self.w.close(
-            {
-                "edges_sampled": self.n,
-                "rejected": rejected,
-                "seconds": edge_seconds,
-                "compile_seconds": kernels["compile_seconds"],
-                "rollout_seconds": kernels["rollout_seconds"],
-                "edge_steps": steps,
-                "states_evaluated": t["evaluated"],
-                "device": device,
-            }
-        )
-        valid = self.w.n_edges
-        self.file.close()
-        os.replace(self.tmp, out)
-        shutil.rmtree(self.folder, ignore_errors=True)
-        return {
-            "edges_sampled": self.n,
-            "edges_valid": valid,
-            "states": t["states"],
-            "rejected": rejected,
-            "edge_steps": steps,
-            "states_evaluated": t["evaluated"],
-            "seconds": round(edge_seconds, 4),
-            "rollout_seconds": round(kernels["rollout_seconds"], 4),
-            "rollout_timing": {k: round(v, 4) for k, v in kernels["rollout_timing"].items()},
-            "rollout_copied_bytes": kernels["rollout_copied_bytes"],
-            "ik_seconds": round(kernels["ik_seconds"], 4),
-            "compile_seconds": round(kernels["compile_seconds"], 4),
-            "write_seconds": round(self.parts["write_states"] + self.parts["write_edges"], 4),
-            "pack_seconds": round(self.parts["pack"] + self.parts["save"], 4),
-            "packers": self.packers,
-            "wait_seconds": round(self.t_wait, 4),
-            "finish_seconds": round(time.perf_counter() - t0, 4),
-            "writer_timing": {k: round(v, 4) for k, v in self.parts.items()},
-            "edge_steps_per_s": round(steps / max(kernels["rollout_seconds"], 1e-9), 1),
-            **sizes,
-        }
 
 
 def _totals(kernel_sets: list[EdgeKernels]) -> dict:
@@ -569,28 +363,3 @@ def _totals(kernel_sets: list[EdgeKernels]) -> dict:
         "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets),
         "ik_seconds": sum(ks.ik.kernel_seconds for ks in kernel_sets),
     }
-
-
-def _write_index_edges(
-    ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
-) -> None:
-    """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
-    range at most INDEX_PAIRS pairs, read from every saved chunk)."""
-    n_cells = len(offset) - 1
-    c0 = 0
-    while c0 < n_cells:
-        c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
-        c1 = min(c1, n_cells)
-        cells, edges = [], []
-        for (a, b), e0 in zip(ranges, first_edge, strict=True):
-            pairs, _ = _arrays(folder, a, b, ("index_cell", "index_edge"))
-            cell, edge = pairs["index_cell"], pairs["index_edge"]
-            sel = (cell >= c0) & (cell < c1)
-            cells.append(cell[sel])
-            edges.append(edge[sel].astype(np.int64) + e0)
-        cell = np.concatenate(cells)
-        edge = np.concatenate(edges)
-        order = np.argsort(cell, kind="stable")  # chunks come in edge order, each sorted by (cell, edge)
-        if len(order):
-            ds[offset[c0] : offset[c1]] = edge[order].astype(np.int32)
-        c0 = c1

@@ -239,7 +239,7 @@ class EdgeWriter:
             chunks = col.chunks(final)
             for i in range(0, len(chunks), GROUP):
                 group = chunks[i : i + GROUP]
-                job = self.pool.submit(_write_chunks, col.ds, group, col.rows_per_chunk, col.ds.dtype)
+                job = self.pool.submit(_write_chunks, col.ds, group, col.rows_per_chunk, col.dtype)
                 self.inflight.append((len(group), job))
                 self.in_flight += len(group)
         self._wait(final)
@@ -278,6 +278,7 @@ class _Column:
 
     def __init__(self, ds: h5py.Dataset, rows_per_chunk: int) -> None:
         self.ds, self.rows_per_chunk = ds, rows_per_chunk
+        self.dtype = ds.dtype  # kept: each h5py call waits for h5py's lock, held by the writing threads
         self.pending: collections.deque[np.ndarray] = collections.deque()
         self.waiting = 0  # rows in `pending`
         self.written = 0  # rows handed on (whole chunks, until the last)

@@ -82,11 +82,16 @@ def from_environment() -> ThreadSampler | None:
     return ThreadSampler().start() if os.environ.get("LMJX_THREAD_PROFILE") else None
 
 
-def write_report(sampler: ThreadSampler | None) -> None:
-    """Stop `sampler` and write its report where LMJX_THREAD_PROFILE says (atomically)."""
+def write_report(sampler: ThreadSampler | None, other: dict | None = None) -> None:
+    """Stop `sampler` and write its report where LMJX_THREAD_PROFILE says (atomically);
+    `other`: another process's report (lmjx.mapwriter's), whose groups are added with
+    "<process>/" before their names."""
     if sampler is None:
         return
+    report = sampler.stop()
+    if other is not None:
+        report["groups"] |= {f"{other.get('process', 'other')}/{g}": v for g, v in other["groups"].items()}
     path = Path(os.environ["LMJX_THREAD_PROFILE"])
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(sampler.stop(), indent=1))
+    tmp.write_text(json.dumps(report, indent=1))
     os.replace(tmp, path)

@@ -65,7 +65,8 @@ def streamed(tmp_path_factory):
 def test_a_build_reports_where_its_threads_are(streamed):
     """LMJX_THREAD_PROFILE: the sampled threads of the build, grouped, each with its places."""
     groups = json.loads(streamed.with_name("threads.json").read_text())["groups"]
-    assert {"MainThread", "lmjx-chunk", "lmjx-map-writer", "lmjx-pack", "lmjx-write"} <= set(groups)
+    assert {"MainThread", "lmjx-chunk", "lmjx-map-feed", "lmjx-pack"} <= set(groups)
+    assert {"writer/lmjx-map-writer", "writer/lmjx-write", "writer/lmjx-read"} <= set(groups)  # lmjx.mapwriter
     chunk = [where for where, _ in groups["lmjx-chunk"]["top"]]
     assert any(w.split(":")[0] in ("batching.py", "bundle.py", "edgestream.py", "ik_batch.py") for w in chunk)
 
@@ -94,13 +95,13 @@ def test_killed_build_resumes_to_the_uninterrupted_file(streamed, tmp_path):
     p = _lmjx(["build-map", *SMALL, "--chunk", "150", "--out", str(out)])
     t0 = time.time()
     while p.poll() is None and time.time() - t0 < 600:
-        if partial.is_dir() and len(list(partial.glob("edges-*.npz"))) >= 2:
+        if partial.is_dir() and len(list(partial.glob("edges-*.chunk"))) >= 2:
             break
         time.sleep(0.05)
     p.send_signal(signal.SIGKILL)
     p.communicate(timeout=60)
     assert not out.exists()
-    kept = sorted(partial.glob("edges-*.npz"))
+    kept = sorted(partial.glob("edges-*.chunk"))
     assert len(kept) >= 2
     # chunk files are not synced to disk: one a machine crash damaged is computed again
     with open(kept[0], "r+b") as fh:
@@ -115,7 +116,7 @@ def test_ctrl_c_leaves_nothing_at_out_and_the_chunks_for_later(tmp_path):
     p = _lmjx(["build-map", *SMALL, "--edges", "200000", "--chunk", "300", "--out", str(out)])
     partial = Path(str(out) + ".partial")
     t0 = time.time()
-    while p.poll() is None and time.time() - t0 < 600 and not list(partial.glob("edges-*.npz")):
+    while p.poll() is None and time.time() - t0 < 600 and not list(partial.glob("edges-*.chunk")):
         time.sleep(0.05)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)

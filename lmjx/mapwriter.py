@@ -1,0 +1,385 @@
+"""The map writing of a streamed build (`lmjx build-map`): packing computed chunks into the
+partial folder, and a process of its own appending them to the HDF5 map.
+
+In the build's process, `packer_threads()` threads pack each computed chunk's valid edges
+with their spatial-index entries (`bundle.pack_chunk`) and save them to the partial folder
+(`chunkfile`); a feeder thread tells the writing process, in edge order, which are saved.
+
+The writing process (`python -m lmjx.mapwriter`: a clean interpreter, with its own
+interpreter lock) reads the chunk files ahead on a few threads, appends them in order to
+`<partial>/map.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
+threads), and at the end sorts the spatial index from the chunk files.  Measured on 2 H200s
+(benchmarks/RESULTS.md, issue 10): in the build's process, beside some 45 busy threads, the
+HDF5 writes waited on the interpreter lock and on h5py's lock in turn, and the map writer
+set a 2-GPU build's pace; in a process of its own they do not compete with the rollouts'
+host work.
+
+The process runs in a session of its own, so Ctrl-C reaches only the build, which stops it;
+it ends when the build's process dies (its pipe closes); a rerun deletes the map it was
+writing.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import chunkfile, threadprof
+from .bundle import BundleConfig, EdgeChunk, chunk_ranges, pack_chunk, reasons, split_rolled
+from .errors import ConfigError
+from .mapfile import PER_EDGE, EdgeWriter, write_head, write_index
+from .reach import ReachResult
+from .robot import Robot, load_robot
+
+# Sampled edges packed (and saved to the partial folder) at a time; not part of the result
+# (LMJX_PACK_EDGES overrides it: the tests use small units).
+PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
+INDEX_PAIRS = 32 * 2**20  # spatial-index pairs sorted at a time when assembling (256 MB)
+READ_AHEAD = 4  # chunk files the writing process reads (decompresses) ahead
+# the chunk arrays the writing process appends (the index pairs are read at the end)
+APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
+
+
+def packer_threads() -> int:
+    """Threads packing computed chunks: a third of the host's cores, 1 to 12."""
+    return max(1, min(12, (os.cpu_count() or 1) // 3))
+
+
+def writer_threads() -> int:
+    """Threads compressing and writing the map in the writing process: up to 8 (the
+    compression of a 2-GPU build's states needs about 2 cores)."""
+    return max(1, min(8, os.cpu_count() or 1))
+
+
+@dataclass
+class _Job:
+    """What the writing process is given."""
+
+    folder: Path
+    reach: ReachResult
+    config: BundleConfig
+    robot: str  # its key: the writing process loads it
+    robot_hash: str
+    n: int
+    ranges: list[tuple[int, int]]  # every chunk of the map, in order
+    saved: set[tuple[int, int]]  # those already saved by an earlier run
+    threads: int
+
+
+class MapWriter:
+    """The build process's side: `put` hands over computed chunks (blocking while a
+    chunk's packing units and 4 more are waiting to be packed), `finish` waits for the
+    map and moves it to `out`, `abort` stops the writing process."""
+
+    def __init__(
+        self,
+        folder: Path,
+        reach: ReachResult,
+        config: BundleConfig,
+        robot: Robot,
+        n: int,
+        done: list[tuple[int, int]],
+        todo: list[tuple[int, int]],
+    ) -> None:
+        self.folder, self.reach, self.config, self.robot = folder, reach, config, robot
+        units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
+        self.n_units = len(units)
+        self.tmp = folder / "map.h5.tmp"
+        self.packers = packer_threads()
+        self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
+        most = max((b - a for a, b in todo), default=1)
+        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + 4)  # pack jobs, in order
+        self.error: BaseException | None = None
+        self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
+        self.t_wait = 0.0
+        self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0}  # packers' seconds (summed), the final wait
+        job = _Job(folder, reach, config, robot.key, robot.model_hash, n, sorted(done + units), set(done),
+                   writer_threads())  # fmt: skip
+        # A process of its own (`python -m lmjx.mapwriter`), whatever the caller's main module
+        # is, in a session of its own (Ctrl-C reaches the build, which stops it), with the CPU
+        # as JAX's platform (it imports JAX, but never uses it).
+        r_in, w_in = os.pipe()
+        r_out, w_out = os.pipe()
+        env = dict(os.environ, JAX_PLATFORMS="cpu")
+        env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+        self.proc = subprocess.Popen([sys.executable, "-m", "lmjx.mapwriter", str(r_in), str(w_out)],
+                                     pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     env=env, start_new_session=True)  # fmt: skip
+        os.close(r_in)
+        os.close(w_out)
+        self.to_writer = Connection(w_in, readable=False)
+        self.from_writer = Connection(r_out, writable=False)
+        self.to_writer.send(job)
+        self.feeder = threading.Thread(target=self._feed, name="lmjx-map-feed", daemon=True)
+        self.feeder.start()
+
+    def put(self, samples, idx, rolled) -> None:
+        """Hand over a computed chunk, packed in units of `PACK_EDGES` sampled edges."""
+        t0 = time.perf_counter()
+        n = len(samples.which)
+        for a, b in chunk_ranges(samples.start + n, PACK_EDGES, samples.start):
+            job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
+            while True:
+                self._check()
+                try:
+                    self.queue.put(job, timeout=0.5)
+                    break
+                except queue.Full:
+                    continue
+        self.t_wait += time.perf_counter() - t0
+
+    def _pack(self, samples, idx, rolled) -> tuple[int, int]:
+        t0 = time.perf_counter()
+        chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
+        t1 = time.perf_counter()
+        chunkfile.save(self.folder, chunk)
+        self.parts["pack"] += t1 - t0  # summed over the packers: CPU seconds
+        self.parts["save"] += time.perf_counter() - t1
+        return chunk.start, chunk.stop
+
+    def _feed(self) -> None:
+        """Tell the writing process, in order, which units are saved."""
+        try:
+            for _ in range(self.n_units):
+                a, b = self.queue.get().result()
+                self.to_writer.send(("unit", a, b))
+        except BaseException as e:  # handed to the main thread
+            self.error = e
+
+    def _check(self) -> None:
+        """Raise what stopped the packers, the feeder or the writing process."""
+        if self.error is not None:
+            raise self.error
+        if self.proc.poll() is not None:
+            raise self._writer_failure()
+
+    def _writer_failure(self) -> BaseException:
+        try:
+            if self.from_writer.poll(0.5):
+                kind, payload = self.from_writer.recv()
+                if kind == "error":
+                    return payload
+        except (EOFError, OSError):
+            pass
+        return RuntimeError(f"the map-writing process stopped (exit code {self.proc.poll()})")
+
+    def finish(self, out: Path, kernels: dict, edge_seconds: float, device: str) -> dict:
+        """Wait for the map, move it to `out` (the partial folder is removed); the build's
+        figures back.  `kernels`: the programs' figures (edgestream's `_totals`)."""
+        t0 = time.perf_counter()
+        self.feeder.join()
+        self.pool.shutdown()
+        self._check()
+        self.to_writer.send(("finish", {"seconds": edge_seconds, "compile_seconds": kernels["compile_seconds"],
+                                        "rollout_seconds": kernels["rollout_seconds"], "device": device}))  # fmt: skip
+        while not self.from_writer.poll(0.5):
+            if self.proc.poll() is not None:
+                raise self._writer_failure()
+        kind, w = self.from_writer.recv()
+        if kind == "error":
+            raise w
+        self.proc.wait()
+        self.parts["drain"] = time.perf_counter() - t0  # the writing left when the rollouts end
+        os.replace(self.tmp, out)
+        shutil.rmtree(self.folder, ignore_errors=True)
+        self.threads_report = w.pop("threads", None)
+        return {
+            "edges_sampled": w["edges_sampled"],
+            "edges_valid": w["edges_valid"],
+            "states": w["states"],
+            "rejected": w["rejected"],
+            "edge_steps": w["edge_steps"],
+            "states_evaluated": w["states_evaluated"],
+            "seconds": round(edge_seconds, 4),
+            "rollout_seconds": round(kernels["rollout_seconds"], 4),
+            "rollout_timing": {k: round(v, 4) for k, v in kernels["rollout_timing"].items()},
+            "rollout_copied_bytes": kernels["rollout_copied_bytes"],
+            "ik_seconds": round(kernels["ik_seconds"], 4),
+            "compile_seconds": round(kernels["compile_seconds"], 4),
+            "write_seconds": round(w["timing"]["write_states"] + w["timing"]["write_edges"], 4),
+            "pack_seconds": round(self.parts["pack"] + self.parts["save"], 4),
+            "packers": self.packers,
+            "writer_threads": w["threads_used"],
+            "wait_seconds": round(self.t_wait, 4),
+            "finish_seconds": round(w["timing"]["index"] + w["timing"]["close"], 4),
+            "writer_timing": {k: round(v, 4) for k, v in {**w["timing"], **self.parts}.items()},
+            "edge_steps_per_s": round(w["edge_steps"] / max(kernels["rollout_seconds"], 1e-9), 1),
+            "bytes_per_state": w["bytes_per_state"],
+            "raw_bytes_per_state": w["raw_bytes_per_state"],
+        }
+
+    def abort(self) -> None:
+        """Stop the writing process and the packers (an interrupted or failed build)."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _writer_main(inbox: Connection, outbox: Connection) -> None:
+    """The writing process: its job, then the map from the chunk files; the figures (or
+    the error) back."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.current_thread().name = "lmjx-map-writer"
+    try:
+        job = inbox.recv()
+    except EOFError:
+        return
+    sampler = threadprof.from_environment()  # LMJX_THREAD_PROFILE: this process's threads too
+    try:
+        result = _Appender(job, inbox).run()
+        if sampler is not None:
+            result["threads"] = sampler.stop() | {"process": "writer"}
+        outbox.send(("done", result))
+    except (EOFError, BrokenPipeError):
+        return  # the build's process is gone
+    except BaseException as e:
+        try:
+            outbox.send(("error", e))
+        except Exception:  # an exception that does not pickle, or the build's process is gone
+            with contextlib.suppress(Exception):
+                outbox.send(("error", RuntimeError(f"the map writer failed: {type(e).__name__}: {e}")))
+
+
+class _Appender:
+    """The writing process's work: chunks appended in order as they are saved."""
+
+    def __init__(self, job: _Job, inbox) -> None:
+        self.job, self.inbox = job, inbox
+        robot = load_robot(job.robot)
+        if robot.model_hash != job.robot_hash:
+            raise ConfigError(f"the robot description {job.robot} changed during the build; rerun the command")
+        self.nq = robot.nq
+        self.ready: set[tuple[int, int]] = set()  # units the build's process says are saved
+        self.timing = {"waits": 0.0, "read": 0.0, "write_states": 0.0, "write_edges": 0.0, "index": 0.0,
+                       "close": 0.0}  # fmt: skip
+        self.totals = {"counts": np.zeros(job.reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()),
+                       np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
+        tmp = job.folder / "map.h5.tmp"
+        tmp.unlink(missing_ok=True)  # a map a killed run was writing
+        self.file = h5py.File(tmp, "w", track_order=True)
+        write_head(self.file, robot, job.reach, with_edges=True)
+        self.w = EdgeWriter(self.file, job.config, job.reach, robot.nq, threads=job.threads)
+
+    def _next_unit(self) -> None:
+        kind, *rest = self.inbox.recv()
+        if kind != "unit":
+            raise RuntimeError(f"the map writer got '{kind}' before every chunk")
+        self.ready.add((rest[0], rest[1]))
+
+    def _read(self, a: int, b: int) -> tuple[dict, dict]:
+        t0 = time.perf_counter()
+        arrays, head = chunkfile.read(self.job.folder, a, b, APPENDED)
+        self.timing["read"] += time.perf_counter() - t0  # summed over the readers
+        return arrays, head
+
+    def run(self) -> dict:
+        job = self.job
+        reader = ThreadPoolExecutor(READ_AHEAD, thread_name_prefix="lmjx-read")
+        loads: collections.deque = collections.deque()  # reads in flight, in order
+        k = 0  # the next range to read
+        try:
+            for _ in job.ranges:
+                t0 = time.perf_counter()
+                while k < len(job.ranges) and len(loads) < READ_AHEAD:
+                    r = job.ranges[k]
+                    # wait for a unit's message only when nothing else is being read
+                    while r not in job.saved and r not in self.ready and (not loads or self.inbox.poll()):
+                        self._next_unit()
+                    if r not in job.saved and r not in self.ready:
+                        break
+                    loads.append(reader.submit(self._read, *r))
+                    k += 1
+                arrays, head = loads.popleft().result()
+                self.timing["waits"] += time.perf_counter() - t0
+                self._append(arrays, head)
+        finally:
+            reader.shutdown(cancel_futures=True)
+        kind, attrs = self.inbox.recv()
+        if kind != "finish":
+            raise RuntimeError(f"the map writer got '{kind}' after the last chunk")
+        return self._finish(attrs)
+
+    def _append(self, c: dict, head: dict) -> None:
+        t = self.totals
+        t["first_edge"].append(self.w.n_edges)
+        t0 = time.perf_counter()
+        self.w.add_states(c["q"], c["qd"], c["p"])
+        t1 = time.perf_counter()
+        length = c["length"]
+        starts = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
+        q_start = c["q"][starts] if len(length) else np.zeros((0, self.nq), np.float32)
+        self.w.add_edges({name: q_start if name == "q_start" else c[name] for name in PER_EDGE})
+        t["counts"] += np.bincount(c["index_cell"], minlength=len(t["counts"]))
+        t["rejected"] += c["rejected"]
+        t["rolled_out"] += head["rolled_out"]
+        t["evaluated"] += head["states_evaluated"]
+        t["states"] += len(c["q"])
+        self.timing["write_states"] += t1 - t0
+        self.timing["write_edges"] += time.perf_counter() - t1
+
+    def _finish(self, attrs: dict) -> dict:
+        job, t = self.job, self.totals
+        t0 = time.perf_counter()
+        offset = np.zeros(len(t["counts"]) + 1, np.int64)
+        offset[1:] = np.cumsum(t["counts"])
+        ds = write_index(self.w.group, job.reach, offset, None)
+        write_index_edges(ds, job.folder, job.ranges, t["first_edge"], offset)
+        t1 = time.perf_counter()
+        rejected = {r: int(k) for r, k in zip(reasons(), t["rejected"], strict=True)}
+        steps = t["rolled_out"] * job.config.steps
+        sizes = self.w.close({"edges_sampled": job.n, "rejected": rejected, "edge_steps": steps,
+                              "states_evaluated": t["evaluated"], **attrs})  # fmt: skip
+        self.file.close()
+        self.timing["index"] = t1 - t0
+        self.timing["close"] = time.perf_counter() - t1
+        return {"edges_sampled": job.n, "edges_valid": self.w.n_edges, "states": t["states"], "rejected": rejected,
+                "edge_steps": steps, "states_evaluated": t["evaluated"], "timing": self.timing,
+                "threads_used": job.threads, **sizes}  # fmt: skip
+
+
+def write_index_edges(
+    ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+) -> None:
+    """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
+    range at most INDEX_PAIRS pairs, read from every saved chunk)."""
+    n_cells = len(offset) - 1
+    c0 = 0
+    while c0 < n_cells:
+        c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
+        c1 = min(c1, n_cells)
+        cells, edges = [], []
+        for (a, b), e0 in zip(ranges, first_edge, strict=True):
+            pairs, _ = chunkfile.read(folder, a, b, ("index_cell", "index_edge"))
+            cell, edge = pairs["index_cell"], pairs["index_edge"]
+            sel = (cell >= c0) & (cell < c1)
+            cells.append(cell[sel])
+            edges.append(edge[sel].astype(np.int64) + e0)
+        cell = np.concatenate(cells)
+        edge = np.concatenate(edges)
+        order = np.argsort(cell, kind="stable")  # chunks come in edge order, each sorted by (cell, edge)
+        if len(order):
+            ds[offset[c0] : offset[c1]] = edge[order].astype(np.int32)
+        c0 = c1
+
+
+if __name__ == "__main__":
+    _writer_main(Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]), readable=False))
