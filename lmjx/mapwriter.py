@@ -41,10 +41,9 @@ import numpy as np
 
 from . import chunkfile, threadprof
 from .bundle import BundleConfig, EdgeChunk, chunk_ranges, pack_chunk, reasons, split_rolled
-from .errors import ConfigError
 from .mapfile import PER_EDGE, EdgeWriter, write_head, write_index
 from .reach import ReachResult
-from .robot import Robot, load_robot
+from .robot import Robot
 
 # Sampled edges packed (and saved to the partial folder) at a time; not part of the result
 # (LMJX_PACK_EDGES overrides it: the tests use small units).
@@ -73,8 +72,7 @@ class _Job:
     folder: Path
     reach: ReachResult
     config: BundleConfig
-    robot: str  # its key: the writing process loads it
-    robot_hash: str
+    nq: int
     n: int
     ranges: list[tuple[int, int]]  # every chunk of the map, in order
     saved: set[tuple[int, int]]  # those already saved by an earlier run
@@ -108,8 +106,12 @@ class MapWriter:
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
         self.t_wait = 0.0
         self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0}  # packers' seconds (summed), the final wait
-        job = _Job(folder, reach, config, robot.key, robot.model_hash, n, sorted(done + units), set(done),
-                   writer_threads())  # fmt: skip
+        job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads())
+        # the map's head (root attributes, /robot, /reach) written here: the writing process
+        # adds /edges, and needs neither the robot's model nor JAX's runtime
+        self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
+        with h5py.File(self.tmp, "w", track_order=True) as f:
+            write_head(f, robot, reach, with_edges=True)
         # A process of its own (`python -m lmjx.mapwriter`), whatever the caller's main module
         # is, in a session of its own (Ctrl-C reaches the build, which stops it), with the CPU
         # as JAX's platform (it imports JAX, but never uses it).
@@ -219,6 +221,8 @@ class MapWriter:
             "finish_seconds": round(w["timing"]["index"] + w["timing"]["close"], 4),
             "writer_timing": {k: round(v, 4) for k, v in {**w["timing"], **self.parts}.items()},
             "edge_steps_per_s": round(w["edge_steps"] / max(kernels["rollout_seconds"], 1e-9), 1),
+            # each process's own high-water mark (their sum bounds the build's)
+            "peak_memory_gb": {"build": round(_peak_rss() / 1e9, 3), "writer": round(w["peak_rss"] / 1e9, 3)},
             "bytes_per_state": w["bytes_per_state"],
             "raw_bytes_per_state": w["raw_bytes_per_state"],
         }
@@ -237,8 +241,11 @@ class MapWriter:
 def _writer_main(inbox: Connection, outbox: Connection) -> None:
     """The writing process: its job, then the map from the chunk files; the figures (or
     the error) back."""
+    from .hostmem import return_large_buffers
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.current_thread().name = "lmjx-map-writer"
+    return_large_buffers()  # as the build's process (lmjx.cli)
     try:
         job = inbox.recv()
     except EOFError:
@@ -264,20 +271,14 @@ class _Appender:
 
     def __init__(self, job: _Job, inbox) -> None:
         self.job, self.inbox = job, inbox
-        robot = load_robot(job.robot)
-        if robot.model_hash != job.robot_hash:
-            raise ConfigError(f"the robot description {job.robot} changed during the build; rerun the command")
-        self.nq = robot.nq
+        self.nq = job.nq
         self.ready: set[tuple[int, int]] = set()  # units the build's process says are saved
         self.timing = {"waits": 0.0, "read": 0.0, "write_states": 0.0, "write_edges": 0.0, "index": 0.0,
                        "close": 0.0}  # fmt: skip
         self.totals = {"counts": np.zeros(job.reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()),
                        np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
-        tmp = job.folder / "map.h5.tmp"
-        tmp.unlink(missing_ok=True)  # a map a killed run was writing
-        self.file = h5py.File(tmp, "w", track_order=True)
-        write_head(self.file, robot, job.reach, with_edges=True)
-        self.w = EdgeWriter(self.file, job.config, job.reach, robot.nq, threads=job.threads)
+        self.file = h5py.File(job.folder / "map.h5.tmp", "r+")  # its head written by the build's process
+        self.w = EdgeWriter(self.file, job.config, job.reach, job.nq, threads=job.threads)
 
     def _next_unit(self) -> None:
         kind, *rest = self.inbox.recv()
@@ -353,7 +354,21 @@ class _Appender:
         self.timing["close"] = time.perf_counter() - t1
         return {"edges_sampled": job.n, "edges_valid": self.w.n_edges, "states": t["states"], "rejected": rejected,
                 "edge_steps": steps, "states_evaluated": t["evaluated"], "timing": self.timing,
-                "threads_used": job.threads, **sizes}  # fmt: skip
+                "threads_used": job.threads, "peak_rss": _peak_rss(), **sizes}  # fmt: skip
+
+
+def _peak_rss() -> int:
+    """This process's peak resident memory in bytes: VmHWM, which a new program starts
+    afresh (getrusage's ru_maxrss keeps, across exec, what the forking process held)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def write_index_edges(
