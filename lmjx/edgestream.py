@@ -289,7 +289,7 @@ def _build_map(
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
-    writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets)) if lead else None
+    writer = MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
     main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
     jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
 
