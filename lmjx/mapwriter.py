@@ -5,8 +5,8 @@ In the build's process, `packer_threads()` threads pack each computed chunk's va
 with their spatial-index entries (`bundle.pack_chunk`) and save them to the partial folder
 (`chunkfile`); a feeder thread tells the writing process, in edge order, which are saved.
 
-The writing process (`python -m lmjx.mapwriter`: a clean interpreter, with its own
-interpreter lock) reads the chunk files ahead on a few threads, appends them in order to
+The writing process (`writer_process`: a clean interpreter, with its own interpreter
+lock) reads the chunk files ahead on a few threads, appends them in order to
 `<partial>/map.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
 threads), and at the end sorts the spatial index from the chunk files.  Measured on 2 H200s
 (benchmarks/RESULTS.md, issue 10): in the build's process, beside some 45 busy threads, the
@@ -112,18 +112,19 @@ class MapWriter:
         self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
         with h5py.File(self.tmp, "w", track_order=True) as f:
             write_head(f, robot, reach, with_edges=True)
-        # A process of its own (`python -m lmjx.mapwriter`), whatever the caller's main module
-        # is, in a session of its own (Ctrl-C reaches the build, which stops it), with the CPU
-        # as JAX's platform (it imports JAX, but never uses it).
+        # A process of its own, whatever the caller's main module is (this lmjx imported from
+        # where this one was), in a session of its own (Ctrl-C reaches the build, which stops
+        # it), with the CPU as JAX's platform (it imports JAX, but never uses it).
         r_in, w_in = os.pipe()
         r_out, w_out = os.pipe()
-        env = dict(os.environ, JAX_PLATFORMS="cpu")
-        env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
-        self.proc = subprocess.Popen([sys.executable, "-m", "lmjx.mapwriter", str(r_in), str(w_out)],
-                                     pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     env=env, start_new_session=True)  # fmt: skip
-        os.close(r_in)
-        os.close(w_out)
+        here = str(Path(__file__).resolve().parents[1])
+        try:
+            self.proc = subprocess.Popen([sys.executable, "-c", _START, here, str(r_in), str(w_out)],
+                                         pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                         env=dict(os.environ, JAX_PLATFORMS="cpu"), start_new_session=True)  # fmt: skip
+        finally:
+            os.close(r_in)
+            os.close(w_out)
         self.to_writer = Connection(w_in, readable=False)
         self.from_writer = Connection(r_out, writable=False)
         self.to_writer.send(job)
@@ -196,6 +197,8 @@ class MapWriter:
         if kind == "error":
             raise w
         self.proc.wait()
+        self.to_writer.close()
+        self.from_writer.close()
         self.parts["drain"] = time.perf_counter() - t0  # the writing left when the rollouts end
         os.replace(self.tmp, out)
         shutil.rmtree(self.folder, ignore_errors=True)
@@ -236,6 +239,19 @@ class MapWriter:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
         self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+# The writing process's program: lmjx from the build's folder (then off the path again, so
+# that it shadows nothing), its pipes' descriptors from the command line.
+_START = (
+    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx.mapwriter as m; sys.path.pop(0); "
+    "m.writer_process(int(sys.argv[2]), int(sys.argv[3]))"
+)
+
+
+def writer_process(inbox_fd: int, outbox_fd: int) -> None:
+    """The writing process's entry point: its pipes from the build's process."""
+    _writer_main(Connection(inbox_fd, writable=False), Connection(outbox_fd, readable=False))
 
 
 def _writer_main(inbox: Connection, outbox: Connection) -> None:
@@ -394,7 +410,3 @@ def write_index_edges(
         if len(order):
             ds[offset[c0] : offset[c1]] = edge[order].astype(np.int32)
         c0 = c1
-
-
-if __name__ == "__main__":
-    _writer_main(Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]), readable=False))

@@ -232,3 +232,26 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, streamed):
     lazy.close()
     out, _ = _run(["info", str(streamed), "--json"])
     assert json.loads(out)["edges"]["valid"] == whole.edges.n_edges
+
+
+def test_the_map_writing_process_reports_why_it_stopped(robot, tmp_path):
+    """lmjx.mapwriter: an error in the writing process reaches the build with its message;
+    a writing process killed outright stops the build too, never a hang."""
+    from lmjx.mapwriter import MapWriter
+
+    reach = reach_map("case2", ReachConfig(cell=0.05, seed=1), robot=robot)
+    config = BundleConfig(edges=1500, seed=1)
+    for kill in (False, True):
+        folder = tmp_path / f"m{kill}.partial"
+        folder.mkdir()
+        w = MapWriter(folder, reach, config, robot, 1500, [], [(0, 1500)])
+        if kill:
+            w.proc.kill()
+            match = "map-writing process stopped"
+        else:
+            w.to_writer.send(("bogus",))  # not a saved chunk: the writer fails on it
+            match = "got 'bogus' before every chunk"
+        w.proc.wait(timeout=120)
+        with pytest.raises(RuntimeError, match=match):
+            w._check()
+        w.abort()
