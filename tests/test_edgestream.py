@@ -73,7 +73,7 @@ def test_a_build_reports_where_its_threads_are(streamed):
 
 def test_chunk_size_and_memory_do_not_change_the_datasets(robot, streamed, tmp_path):
     other = tmp_path / "b.h5"
-    # computed in chunks of 1100, packed in units of 300 (lmjx.edgestream.PACK_EDGES), in a
+    # computed in chunks of 1100, packed in units of 300 (lmjx.mapwriter.PACK_EDGES), in a
     # process of its own while this one builds the bundle in memory
     p = _lmjx(["build-map", *SMALL, "--chunk", "1100", "--out", str(other)], env={"LMJX_PACK_EDGES": "300"})
     # the in-memory bundle (lmjx.bundle.build_bundle, in chunks of 250) writes the same datasets
