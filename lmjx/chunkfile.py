@@ -90,7 +90,7 @@ def _header(fh) -> tuple[dict, int]:
 def read(folder: Path, a: int, b: int, names: tuple[str, ...] = EdgeChunk.ARRAYS) -> tuple[dict, dict]:
     """The arrays `names` of a saved chunk (checked against their CRC-32), and its header.
     A damaged file is removed and reported (ChunkFileError): the same command again
-    computes that chunk anew."""
+    computes that chunk anew.  One the file system fails to read is reported, and kept."""
     path = chunk_path(folder, a, b)
     try:
         with open(path, "rb") as fh:
@@ -113,11 +113,13 @@ def read(folder: Path, a: int, b: int, names: tuple[str, ...] = EdgeChunk.ARRAYS
                 raise ValueError(f"{k}: checksum")
             out[k] = arr
         return out, head
-    except (OSError, ValueError, KeyError) as e:
+    except (ValueError, KeyError) as e:  # its bytes are wrong: it goes
         path.unlink(missing_ok=True)
         raise ChunkFileError(
             f"{path.name} in {folder} was damaged ({e}) and is removed: rerun the same command to compute it again"
         ) from e
+    except OSError as e:  # the file system's trouble, perhaps passing: the file stays
+        raise ChunkFileError(f"{path.name} in {folder} could not be read ({e}); rerun the same command") from e
 
 
 def _nbytes(entry: list) -> int:

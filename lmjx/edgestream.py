@@ -289,7 +289,7 @@ def _build_map(
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
-    writer = MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
+    writer: MapWriter | None = None
     main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
     jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
 
@@ -312,6 +312,7 @@ def _build_map(
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
     try:
+        writer = MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
         for k, (a, b) in enumerate(todo):
             i = k % len(kernel_sets)
             window.append(pools[i].submit(job, kernel_sets[i], a, b))

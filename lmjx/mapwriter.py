@@ -31,6 +31,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -41,6 +42,7 @@ import numpy as np
 
 from . import chunkfile, threadprof
 from .bundle import BundleConfig, EdgeChunk, chunk_ranges, pack_chunk, reasons, split_rolled
+from .errors import LmjxError
 from .mapfile import PER_EDGE, EdgeWriter, write_head, write_index
 from .reach import ReachResult
 from .robot import Robot
@@ -77,6 +79,7 @@ class _Job:
     ranges: list[tuple[int, int]]  # every chunk of the map, in order
     saved: set[tuple[int, int]]  # those already saved by an earlier run
     threads: int
+    tmp: Path  # the map being written
 
 
 class MapWriter:
@@ -97,19 +100,23 @@ class MapWriter:
         self.folder, self.reach, self.config, self.robot = folder, reach, config, robot
         units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
         self.n_units = len(units)
-        self.tmp = folder / "map.h5.tmp"
+        # the map being written: a name of this run's own (a writing process a killed run left
+        # behind, until it notices, keeps writing its own file, unlinked here)
+        for old in folder.glob("map*.h5.tmp"):
+            old.unlink(missing_ok=True)
+        self.tmp = folder / f"map-{os.getpid()}.h5.tmp"
         self.packers = packer_threads()
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
         most = max((b - a for a, b in todo), default=1)
         self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + 4)  # pack jobs, in order
-        self.error: BaseException | None = None
+        self.error: BaseException | None = None  # what stopped the packers or the feeder
+        self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
         self.t_wait = 0.0
         self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0}  # packers' seconds (summed), the final wait
-        job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads())
+        job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads(), self.tmp)
         # the map's head (root attributes, /robot, /reach) written here: the writing process
         # adds /edges, and needs neither the robot's model nor JAX's runtime
-        self.tmp.unlink(missing_ok=True)  # a map a killed run was writing
         with h5py.File(self.tmp, "w", track_order=True) as f:
             write_head(f, robot, reach, with_edges=True)
         # A process of its own, whatever the caller's main module is (this lmjx imported from
@@ -127,7 +134,11 @@ class MapWriter:
             os.close(w_out)
         self.to_writer = Connection(w_in, readable=False)
         self.from_writer = Connection(r_out, writable=False)
-        self.to_writer.send(job)
+        try:  # (the job is sent once the process has started; Ctrl-C meanwhile stops it)
+            self.to_writer.send(job)
+        except BaseException:
+            self.abort()
+            raise
         self.feeder = threading.Thread(target=self._feed, name="lmjx-map-feed", daemon=True)
         self.feeder.start()
 
@@ -157,27 +168,40 @@ class MapWriter:
 
     def _feed(self) -> None:
         """Tell the writing process, in order, which units are saved."""
-        try:
-            for _ in range(self.n_units):
-                a, b = self.queue.get().result()
+        sent = 0
+        while sent < self.n_units and not self.stop.is_set():
+            try:
+                job = self.queue.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            try:
+                a, b = job.result()
+            except BaseException as e:  # a packer's error, handed to the main thread
+                self.error = e
+                return
+            try:
                 self.to_writer.send(("unit", a, b))
-        except BaseException as e:  # handed to the main thread
-            self.error = e
+            except OSError:  # the writing process is gone: _check says why
+                return
+            sent += 1
 
     def _check(self) -> None:
-        """Raise what stopped the packers, the feeder or the writing process."""
-        if self.error is not None:
-            raise self.error
+        """Raise what stopped the writing process, the packers or the feeder."""
         if self.proc.poll() is not None:
             raise self._writer_failure()
+        if self.error is not None:
+            raise self.error
 
     def _writer_failure(self) -> BaseException:
+        """The writing process's error (its own message, or how it ended)."""
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(5)
         try:
             if self.from_writer.poll(0.5):
-                kind, payload = self.from_writer.recv()
+                kind, payload, trace = self.from_writer.recv()
                 if kind == "error":
-                    return payload
-        except (EOFError, OSError):
+                    return _annotated(payload, trace)
+        except (EOFError, OSError, ValueError):
             pass
         return RuntimeError(f"the map-writing process stopped (exit code {self.proc.poll()})")
 
@@ -188,14 +212,18 @@ class MapWriter:
         self.feeder.join()
         self.pool.shutdown()
         self._check()
-        self.to_writer.send(("finish", {"seconds": edge_seconds, "compile_seconds": kernels["compile_seconds"],
-                                        "rollout_seconds": kernels["rollout_seconds"], "device": device}))  # fmt: skip
-        while not self.from_writer.poll(0.5):
-            if self.proc.poll() is not None:
-                raise self._writer_failure()
-        kind, w = self.from_writer.recv()
+        attrs = {"seconds": edge_seconds, "compile_seconds": kernels["compile_seconds"],
+                 "rollout_seconds": kernels["rollout_seconds"], "device": device}  # fmt: skip
+        try:
+            self.to_writer.send(("finish", attrs))
+            while not self.from_writer.poll(0.5):
+                if self.proc.poll() is not None:
+                    break
+            kind, w, trace = self.from_writer.recv()
+        except (EOFError, OSError):  # it died: how
+            raise self._writer_failure() from None
         if kind == "error":
-            raise w
+            raise _annotated(w, trace)
         self.proc.wait()
         self.to_writer.close()
         self.from_writer.close()
@@ -231,7 +259,9 @@ class MapWriter:
         }
 
     def abort(self) -> None:
-        """Stop the writing process and the packers (an interrupted or failed build)."""
+        """Stop the writing process, the feeder and the packers (an interrupted or failed
+        build); the pipes closed."""
+        self.stop.set()
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
@@ -239,12 +269,14 @@ class MapWriter:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
         self.pool.shutdown(wait=False, cancel_futures=True)
+        for conn in (self.to_writer, self.from_writer):
+            conn.close()
 
 
 # The writing process's program: lmjx from the build's folder (then off the path again, so
 # that it shadows nothing), its pipes' descriptors from the command line.
 _START = (
-    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx.mapwriter as m; sys.path.pop(0); "
+    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx; sys.path.pop(0); import lmjx.mapwriter as m; "
     "m.writer_process(int(sys.argv[2]), int(sys.argv[3]))"
 )
 
@@ -264,22 +296,23 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
     return_large_buffers()  # as the build's process (lmjx.cli)
     try:
         job = inbox.recv()
-    except EOFError:
+    except (EOFError, OSError):  # the build's process stopped before it was sent whole
         return
     sampler = threadprof.from_environment()  # LMJX_THREAD_PROFILE: this process's threads too
     try:
         result = _Appender(job, inbox).run()
         if sampler is not None:
             result["threads"] = sampler.stop() | {"process": "writer"}
-        outbox.send(("done", result))
+        outbox.send(("done", result, ""))
     except (EOFError, BrokenPipeError):
         return  # the build's process is gone
     except BaseException as e:
+        trace = traceback.format_exc()
         try:
-            outbox.send(("error", e))
+            outbox.send(("error", e, trace))
         except Exception:  # an exception that does not pickle, or the build's process is gone
             with contextlib.suppress(Exception):
-                outbox.send(("error", RuntimeError(f"the map writer failed: {type(e).__name__}: {e}")))
+                outbox.send(("error", RuntimeError(f"the map writer failed: {type(e).__name__}: {e}"), trace))
 
 
 class _Appender:
@@ -293,7 +326,7 @@ class _Appender:
                        "close": 0.0}  # fmt: skip
         self.totals = {"counts": np.zeros(job.reach.labels.size, np.int64), "rejected": np.zeros(len(reasons()),
                        np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
-        self.file = h5py.File(job.folder / "map.h5.tmp", "r+")  # its head written by the build's process
+        self.file = h5py.File(job.tmp, "r+")  # its head written by the build's process
         self.w = EdgeWriter(self.file, job.config, job.reach, job.nq, threads=job.threads)
 
     def _next_unit(self) -> None:
@@ -371,6 +404,14 @@ class _Appender:
         return {"edges_sampled": job.n, "edges_valid": self.w.n_edges, "states": t["states"], "rejected": rejected,
                 "edge_steps": steps, "states_evaluated": t["evaluated"], "timing": self.timing,
                 "threads_used": job.threads, "peak_rss": _peak_rss(), **sizes}  # fmt: skip
+
+
+def _annotated(e: BaseException, trace: str) -> BaseException:
+    """The writing process's exception, with its traceback there as a note (but for a
+    user's error, whose message says it all)."""
+    if not isinstance(e, LmjxError):
+        e.add_note(f"in the map-writing process:\n{trace}")
+    return e
 
 
 def _peak_rss() -> int:

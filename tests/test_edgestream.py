@@ -18,6 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
+from lmjx import chunkfile
 from lmjx.bundle import BundleConfig, build_bundle
 from lmjx.edgestream import missing_ranges, preflight
 from lmjx.mapfile import load_map, write_map
@@ -103,9 +104,21 @@ def test_killed_build_resumes_to_the_uninterrupted_file(streamed, tmp_path):
     assert not out.exists()
     kept = sorted(partial.glob("edges-*.chunk"))
     assert len(kept) >= 2
-    # chunk files are not synced to disk: one a machine crash damaged is computed again
+    # chunk files are not synced to disk: one a machine crash damaged is computed again, a
+    # truncated one at once, one whose bytes changed once its checksum fails (the build
+    # stops with one line; the same command again finishes it)
     with open(kept[0], "r+b") as fh:
         fh.truncate(100)
+    with open(kept[1], "rb") as fh:
+        head, base = chunkfile._header(fh)
+    data = bytearray(kept[1].read_bytes())
+    data[base + head["arrays"]["rejected"][2]] ^= 0x40  # a count of rejected edges
+    kept[1].write_bytes(bytes(data))
+    p = _lmjx(["build-map", *SMALL, "--chunk", "150", "--out", str(out)])
+    _, err = p.communicate(timeout=900)
+    assert p.returncode == 2 and "Traceback" not in err, err[-3000:]
+    assert "was damaged" in err.strip().splitlines()[-1] and "rerun the same command" in err
+    assert not kept[1].exists() and not out.exists()
     _, _err = _run(["build-map", *SMALL, "--chunk", "150", "--out", str(out)])
     assert same_datasets(streamed, out) == []
     assert not partial.exists()
@@ -235,23 +248,29 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, streamed):
 
 
 def test_the_map_writing_process_reports_why_it_stopped(robot, tmp_path):
-    """lmjx.mapwriter: an error in the writing process reaches the build with its message;
-    a writing process killed outright stops the build too, never a hang."""
+    """lmjx.mapwriter: an error in the writing process reaches the build with its message
+    (and its traceback there); a writing process killed outright stops the build too, at
+    any point, never a hang."""
     from lmjx.mapwriter import MapWriter
 
     reach = reach_map("case2", ReachConfig(cell=0.05, seed=1), robot=robot)
     config = BundleConfig(edges=1500, seed=1)
-    for kill in (False, True):
-        folder = tmp_path / f"m{kill}.partial"
-        folder.mkdir()
-        w = MapWriter(folder, reach, config, robot, 1500, [], [(0, 1500)])
-        if kill:
-            w.proc.kill()
-            match = "map-writing process stopped"
-        else:
-            w.to_writer.send(("bogus",))  # not a saved chunk: the writer fails on it
-            match = "got 'bogus' before every chunk"
-        w.proc.wait(timeout=120)
-        with pytest.raises(RuntimeError, match=match):
-            w._check()
-        w.abort()
+    kernels = {"compile_seconds": 0.0, "rollout_seconds": 0.0, "rollout_timing": {}, "rollout_copied_bytes": 0,
+               "ik_seconds": 0.0}  # fmt: skip
+    # a message it does not expect
+    (tmp_path / "a").mkdir()
+    w = MapWriter(tmp_path / "a", reach, config, robot, 1500, [], [(0, 1500)])
+    w.to_writer.send(("bogus",))
+    w.proc.wait(timeout=120)
+    with pytest.raises(RuntimeError, match="got 'bogus' before every chunk") as info:
+        w._check()
+    assert "in the map-writing process" in "".join(getattr(info.value, "__notes__", []))
+    w.abort()
+    # killed while the build waits for the map (nothing left to compute)
+    (tmp_path / "b").mkdir()
+    w = MapWriter(tmp_path / "b", reach, config, robot, 1500, [], [])
+    w.proc.kill()
+    with pytest.raises(RuntimeError, match=r"map-writing process stopped \(exit code -9\)"):
+        w.finish(tmp_path / "b.h5", kernels, 0.0, "cpu")
+    w.abort()
+    assert not (tmp_path / "b.h5").exists()
