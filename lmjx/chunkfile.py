@@ -44,7 +44,8 @@ NAME = re.compile(r"^edges-(\d+)-(\d+)\.chunk$")
 
 
 class ChunkFileError(LmjxError):
-    """A chunk file that cannot be read back (removed, so that a rerun computes it again)."""
+    """A chunk file that cannot be read back: damaged (then removed, so that a rerun
+    computes it again), or not readable from the file system now (then kept)."""
 
 
 def chunk_path(folder: Path, a: int, b: int) -> Path:

@@ -21,9 +21,9 @@ Disk: the partial chunks and the map side by side.
 Resumable: killed at any point (kill -9 included), the same command starts again from what
 `<out>.partial` holds: saved chunks are kept (and read back into the map in their turn),
 missing ones computed; a build with other parameters refuses to touch it.  Ctrl-C leaves
-nothing at `<out>`.  The chunk size is not part of the result: edges are drawn from counter-based streams
-(`bundle.edge_uniforms`), so the same seed gives the same datasets for any chunking and any
-number of devices or processes.
+nothing at `<out>`.  The chunk size is not part of the result: edges are drawn from
+counter-based streams (`bundle.edge_uniforms`), so the same seed gives the same datasets for
+any chunking and any number of devices or processes.
 
 Several devices of one process: each runs whole chunks with its own programs and threads,
 so the host work of preparing and collecting launches grows with the devices too.  Several
@@ -60,10 +60,7 @@ from .chunkfile import saved_chunks
 from .errors import ConfigError, OutputPathError
 from .failure import Failure
 from .fileio import check_writable
-from .mapfile import (
-    load_map,
-    write_reach_map,
-)
+from .mapfile import load_map, write_reach_map
 from .mapwriter import MapWriter
 from .progress import Progress
 from .reach import ReachConfig, ReachResult, reach_map

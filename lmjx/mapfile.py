@@ -158,9 +158,9 @@ def bundle_attrs(b: Bundle) -> dict:
 
 
 try:  # Intel ISA-L's deflate: standard deflate streams (any HDF5 reads them), 6-10x faster
-    from isal import isal_zlib as deflate  # than zlib on these floats, sizes within 3 %
+    from isal import isal_zlib as _deflate  # than zlib on these floats, sizes within 3 %
 except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the same files' data
-    import zlib as deflate
+    import zlib as _deflate
 DEFLATE_LEVEL = 1  # the level of every dataset lmjx writes in chunks (zlib's level 4 compressed
 # q 1.5x slower than level 1 for 1 % less size)
 
@@ -331,7 +331,7 @@ def _write_chunks(ds: h5py.Dataset, chunks: list[tuple[int, list[np.ndarray]]], 
     shuffled = np.ascontiguousarray(block.view(np.uint8).reshape(len(chunks), -1, size).transpose(0, 2, 1))
     zeros = (0,) * (first.ndim - 1)
     for (row, _), data in zip(chunks, shuffled, strict=True):
-        ds.id.write_direct_chunk((row, *zeros), deflate.compress(data, DEFLATE_LEVEL), 0)
+        ds.id.write_direct_chunk((row, *zeros), _deflate.compress(data, DEFLATE_LEVEL), 0)
 
 
 def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np.ndarray | None) -> h5py.Dataset:

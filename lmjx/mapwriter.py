@@ -7,7 +7,7 @@ with their spatial-index entries (`bundle.pack_chunk`) and save them to the part
 
 The writing process (`writer_process`: a clean interpreter, with its own interpreter
 lock) reads the chunk files ahead on a few threads, appends them in order to
-`<partial>/map.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
+`<partial>/map-<pid>.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
 threads), and at the end sorts the spatial index from the chunk files.  Measured on 2 H200s
 (benchmarks/RESULTS.md, issue 10): in the build's process, beside some 45 busy threads, the
 HDF5 writes waited on the interpreter lock and on h5py's lock in turn, and the map writer
@@ -51,7 +51,7 @@ from .robot import Robot
 # (LMJX_PACK_EDGES overrides it: the tests use small units).
 PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
 INDEX_PAIRS = 32 * 2**20  # spatial-index pairs sorted at a time when assembling (256 MB)
-READ_AHEAD = 4  # chunk files the writing process reads (decompresses) ahead
+READ_AHEAD = 4  # chunk files the writing process reads ahead
 # the chunk arrays the writing process appends (the index pairs are read at the end)
 APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
 
@@ -320,7 +320,6 @@ class _Appender:
 
     def __init__(self, job: _Job, inbox) -> None:
         self.job, self.inbox = job, inbox
-        self.nq = job.nq
         self.ready: set[tuple[int, int]] = set()  # units the build's process says are saved
         self.timing = {"waits": 0.0, "read": 0.0, "write_states": 0.0, "write_edges": 0.0, "index": 0.0,
                        "close": 0.0}  # fmt: skip
@@ -376,7 +375,7 @@ class _Appender:
         t1 = time.perf_counter()
         length = c["length"]
         starts = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
-        q_start = c["q"][starts] if len(length) else np.zeros((0, self.nq), np.float32)
+        q_start = c["q"][starts] if len(length) else np.zeros((0, self.job.nq), np.float32)
         self.w.add_edges({name: q_start if name == "q_start" else c[name] for name in PER_EDGE})
         t["counts"] += np.bincount(c["index_cell"], minlength=len(t["counts"]))
         t["rejected"] += c["rejected"]
