@@ -3,7 +3,7 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m shardscale threads5m decision uratlas; planner, gputests, evalgpu and decision need
+# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
@@ -128,6 +128,20 @@ for step in $steps; do
         --out "$WORK/case2_5M_all.h5" --json > "$OUT/build5m_all.json" 2> "$WORK/build5m_all.err"
       grep -aE "Elapsed|Maximum resident|tree_rss" "$WORK/build5m_all.err"; cat "$OUT/build5m_all.json"
       timeout 200 python3 benchmarks/same_map.py "$WORK/maps/case2_5M.h5" "$WORK/case2_5M_all.h5" ;;
+    speedup5m)
+      # Issue 10: 5,000,000 edges on one GPU, then on every GPU, ${REPEATS:-3} times (the speed-up
+      # varies from run to run); the datasets compared once; the speed-ups (benchmarks/speedup.py).
+      rm -f "$OUT"/speedup5m_*.json
+      for r in $(seq "${REPEATS:-3}"); do
+        for mode in --no-shard ""; do
+          tag=${mode:+1gpu}; tag=${tag:-all}
+          python3 benchmarks/tree_rss.py -- timeout 300 python3 -m lmjx.cli build-map --failure case2 --edges 5000000 \
+            $mode --out "$WORK/s5m_$tag.h5" --json > "$OUT/speedup5m_${r}_$tag.json" 2> "$WORK/s5m.err"
+          grep -a tree_rss "$WORK/s5m.err"
+        done
+        [ "$r" = 1 ] && timeout 200 python3 benchmarks/same_map.py "$WORK/s5m_1gpu.h5" "$WORK/s5m_all.h5"
+      done
+      python3 benchmarks/speedup.py "$OUT"/speedup5m_*.json ;;
     threads5m)
       # Issue 10: where the threads of a 5M build stand (lmjx/threadprof.py), on 1 GPU, then on all.
       for mode in --no-shard ""; do

@@ -486,14 +486,20 @@ def pack_chunk(
     for code in range(1, len(REASONS)):
         rejected[code] = int(np.sum(out["reason"][~valid_local] == code))
     lens = (samples.length[keep] + 1).astype(np.int32)  # states per edge
-    rows = np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)  # step of each state
-    src = np.repeat(np.arange(len(keep)), lens)  # trajectories: valid edges only (roll_out)
+    # the stored states: each valid edge's first `lens` steps (roll_out's trajectories are the
+    # valid edges' only), as flat rows of the (edge, step) arrays (a take beats 2-D indexing)
+    steps = out["q"].shape[1] if out["q"].ndim == 3 else 0
+    flat = np.flatnonzero(np.arange(steps)[None, :] < lens[:, None])
+
+    def rows_of(a: np.ndarray) -> np.ndarray:
+        return np.take(a.reshape(-1, a.shape[-1]), flat, axis=0)
+
     q_fixed = reach.failure.q_fixed(robot.nq).astype(np.float32)
-    q = np.broadcast_to(q_fixed, (len(rows), robot.nq)).copy()
-    qd = np.zeros((len(rows), robot.nq), np.float32)
-    q[:, free] = out["q"][src, rows]
-    qd[:, free] = out["qd"][src, rows]
-    p = out["p"][src, rows].astype(np.float32)
+    q = np.broadcast_to(q_fixed, (len(flat), robot.nq)).copy()
+    qd = np.zeros((len(flat), robot.nq), np.float32)
+    q[:, free] = rows_of(out["q"])
+    qd[:, free] = rows_of(out["qd"])
+    p = rows_of(out["p"]).astype(np.float32)
     radius = robot.arm.site_radius[list(samples.sites)][samples.which[keep]]
     index_cell, index_edge = index_pairs(reach, p, lens, radius, config.index_height, config.index_substeps)
     evaluated = int(np.sum(np.where(out["valid"], samples.length[idx], out["fail_step"]) + 1))
@@ -520,6 +526,11 @@ def pack_chunk(
     )
 
 
+# How far above `index_height` a segment's end may be for the segment to be sampled: far more
+# than float32 rounding can move an inner point below its ends (no point found is lost).
+LOW_SLACK = 1e-3
+
+
 def index_pairs(
     reach: ReachResult,
     p: np.ndarray,
@@ -542,9 +553,12 @@ def index_pairs(
         return np.zeros(0, np.int32), np.zeros(0, np.int32)
     last = np.zeros(n, bool)
     last[np.cumsum(length) - 1] = True
-    a = np.nonzero(~last)[0]
-    # Each step segment's points in trajectory order (its start state, then its inner points),
-    # then every edge's last state; only the low ones are kept.
+    # A segment's inner points lie between its ends' heights, so only segments with a low end
+    # (allowing for rounding) can hold low points: the others are dropped before sampling.
+    near = p[:, 2] - edge_radius[edge_of_row] <= height + LOW_SLACK
+    a = np.nonzero(~last[:-1] & (near[:-1] | near[1:]))[0]
+    # Each kept segment's points (its start state, then its inner points), then every edge's
+    # last state; only the low ones are kept.
     seg = np.empty((len(a), substeps, 3), p.dtype)
     pa, pb = p[a], p[a + 1]
     seg[:, 0] = pa
@@ -552,8 +566,9 @@ def index_pairs(
         t = s / substeps
         seg[:, s] = pa * (1 - t) + pb * t
     del pa, pb
-    pts = np.concatenate([seg.reshape(-1, 3), p[last]])
-    own = np.concatenate([np.repeat(edge_of_row[a], substeps), edge_of_row[last]])
+    ends = np.nonzero(last & near)[0]
+    pts = np.concatenate([seg.reshape(-1, 3), p[ends]])
+    own = np.concatenate([np.repeat(edge_of_row[a], substeps), edge_of_row[ends]])
     del seg
     low = np.nonzero(pts[:, 2] - edge_radius[own] <= height)[0]
     pts, own = pts[low], own[low]

@@ -309,7 +309,7 @@ def _build_map(
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
     try:
-        writer = MapWriter(folder, reach, config, robot, n, done, todo) if lead else None
+        writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets)) if lead else None
         for k, (a, b) in enumerate(todo):
             i = k % len(kernel_sets)
             window.append(pools[i].submit(job, kernel_sets[i], a, b))

@@ -83,8 +83,8 @@ class _Job:
 
 
 class MapWriter:
-    """The build process's side: `put` hands over computed chunks (blocking while a
-    chunk's packing units and 4 more are waiting to be packed), `finish` waits for the
+    """The build process's side: `put` hands over computed chunks (blocking while, per
+    device, a chunk's packing units and 4 more are waiting to be packed), `finish` waits for the
     map and moves it to `out`, `abort` stops the writing process."""
 
     def __init__(
@@ -96,6 +96,7 @@ class MapWriter:
         n: int,
         done: list[tuple[int, int]],
         todo: list[tuple[int, int]],
+        devices: int = 1,
     ) -> None:
         self.folder, self.reach, self.config, self.robot = folder, reach, config, robot
         units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
@@ -108,7 +109,9 @@ class MapWriter:
         self.packers = packer_threads()
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
         most = max((b - a for a, b in todo), default=1)
-        self.queue: queue.Queue = queue.Queue(maxsize=-(-most // PACK_EDGES) + 4)  # pack jobs, in order
+        # pack jobs, in order: per device, a chunk's units and 4 more (on 2 H200s, 6 in all
+        # kept the packers from keeping up: benchmarks/RESULTS.md, issue 10)
+        self.queue: queue.Queue = queue.Queue(maxsize=devices * (-(-most // PACK_EDGES) + 4))
         self.error: BaseException | None = None  # what stopped the packers or the feeder
         self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report

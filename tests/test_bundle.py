@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.bundle import BundleConfig, build_bundle
+from lmjx.bundle import BundleConfig, build_bundle, index_pairs
 from lmjx.errors import ConfigError
 from lmjx.failure import parse_failure
 from lmjx.kernels.rollout import REASONS, Limits, RolloutSettings, edge_rollout
@@ -158,6 +158,39 @@ def test_spatial_index(robot, case2):
                 assert np.any(over & (path[:, 2] - r <= b.config.index_height + 1e-6))
                 listed += 1
     assert listed == len(b.index_edges) > 0
+
+
+def test_index_pairs_equal_every_sampled_point(case2):
+    """The spatial index lists exactly the (cell, edge) pairs that sampling every step segment
+    at `substeps` points and every edge's last state gives, point by point (no segment
+    skipped): paths that skim the index height from above and below, and leave the table."""
+    reach, b = case2
+    rng = np.random.default_rng(5)
+    height, substeps = b.config.index_height, b.config.index_substeps
+    length = rng.integers(1, 40, 300)
+    radius = rng.uniform(0.0, 0.05, len(length)).astype(np.float32)
+    x0, x1 = reach.xs[0] - 0.2, reach.xs[-1] + 0.2
+    y0, y1 = reach.ys[0] - 0.2, reach.ys[-1] + 0.2
+    paths = []
+    for n, r in zip(length, radius, strict=True):
+        a, c = rng.uniform((x0, y0), (x1, y1), (2, 2))
+        xy = a + (c - a) * np.linspace(0, 1, n)[:, None]
+        z = height + r + rng.choice([1e-7, -1e-7, 1e-4, 0.02]) * np.cos(rng.uniform(0, 6, n) + np.arange(n))
+        paths.append(np.column_stack([xy, z]).astype(np.float32))
+    p = np.concatenate(paths)
+    cell_of, edge_of = index_pairs(reach, p, length, radius, height, substeps)
+    want = set()
+    nx = len(reach.xs)
+    for e, s in enumerate(paths):
+        t = (np.arange(substeps) / substeps).astype(np.float32)
+        pts = [s[i] * (1 - tt) + s[i + 1] * tt if k else s[i] for i in range(len(s) - 1) for k, tt in enumerate(t)]
+        for pt in [*pts, s[-1]]:
+            ix = int(np.floor((pt[0] - (reach.xs[0] - reach.config.cell / 2)) / reach.config.cell))
+            iy = int(np.floor((pt[1] - (reach.ys[0] - reach.config.cell / 2)) / reach.config.cell))
+            if pt[2] - radius[e] <= height and 0 <= ix < nx and 0 <= iy < len(reach.ys):
+                want.add((iy * nx + ix, e))
+    got = list(zip(cell_of.tolist(), edge_of.tolist(), strict=True))
+    assert got == sorted(want) and len(want) > 100
 
 
 def test_same_seed_same_bundle(robot, case2):

@@ -1,0 +1,48 @@
+"""The speed-up of a build on every GPU over one GPU, from the `--json` outputs of repeated
+runs (benchmarks/gpu_session.sh speedup5m): each run's seconds after compilation and to the
+finished file, then the ratios of the medians, the worst pairing, and the best.
+
+    python benchmarks/speedup.py out/gpu/speedup5m_*.json
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+from pathlib import Path
+
+
+def load(path: Path) -> dict:
+    """The build's edge figures (a JSON file may carry a line of other output before it)."""
+    text = path.read_text()
+    return json.JSONDecoder().raw_decode(text[text.index("{") :])[0]["edges"]
+
+
+def main(paths: list[str]) -> int:
+    if not paths:
+        print(__doc__.strip().splitlines()[-1].strip(), file=sys.stderr)
+        return 2
+    runs: dict[int, list[tuple[float, float]]] = {}
+    for p in sorted(paths):
+        e = load(Path(p))
+        devices = int(e["devices"])
+        runs.setdefault(devices, []).append((float(e["seconds"]), float(e["edges_wall_seconds"])))
+        print(f"{Path(p).name}: {devices} GPU(s), {e['seconds']:.2f} s after compilation, "
+              f"{e['edges_wall_seconds']:.2f} s to the file, {e['edges_valid']:,} valid edges")  # fmt: skip
+    if 1 not in runs or len(runs) < 2:
+        print("need runs on 1 GPU and on more", file=sys.stderr)
+        return 2
+    most = max(runs)
+    for i, what in enumerate(("after compilation", "to the finished file")):
+        one = [r[i] for r in runs[1]]
+        many = [r[i] for r in runs[most]]
+        print(f"{what}: 1 GPU median {statistics.median(one):.2f} s ({len(one)} runs), "
+              f"{most} GPUs median {statistics.median(many):.2f} s ({len(many)} runs): "
+              f"speed-up {statistics.median(one) / statistics.median(many):.2f}x median, "
+              f"{min(one) / max(many):.2f}x worst, {max(one) / min(many):.2f}x best")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
