@@ -34,6 +34,9 @@ def main(paths: list[str]) -> int:
         print("need runs on 1 GPU and on more", file=sys.stderr)
         return 2
     most = max(runs)
+    pairs = list(zip(runs[1], runs[most], strict=False))  # the runs made one after the other
+    for i, what in enumerate(("after compilation", "to the finished file")):
+        print(f"speed-up {what}, run by run: " + ", ".join(f"{a[i] / b[i]:.2f}x" for a, b in pairs))
     for i, what in enumerate(("after compilation", "to the finished file")):
         one = [r[i] for r in runs[1]]
         many = [r[i] for r in runs[most]]

@@ -116,7 +116,8 @@ class MapWriter:
         self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
         self.t_wait = 0.0
-        self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0}  # packers' seconds (summed), the final wait
+        # packers' seconds (summed), the final wait, moving the map to `out`, removing the partial folder
+        self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0, "replace": 0.0, "remove_partial": 0.0}
         job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads(), self.tmp)
         # the map's head (root attributes, /robot, /reach) written here: the writing process
         # adds /edges, and needs neither the robot's model nor JAX's runtime
@@ -230,9 +231,12 @@ class MapWriter:
         self.proc.wait()
         self.to_writer.close()
         self.from_writer.close()
-        self.parts["drain"] = time.perf_counter() - t0  # the writing left when the rollouts end
-        os.replace(self.tmp, out)
+        t1 = time.perf_counter()
+        self.parts["drain"] = t1 - t0  # the writing left when the rollouts end
+        os.replace(self.tmp, out)  # (a map already at `out` is freed here)
+        t2 = time.perf_counter()
         shutil.rmtree(self.folder, ignore_errors=True)
+        self.parts["replace"], self.parts["remove_partial"] = t2 - t1, time.perf_counter() - t2
         self.threads_report = w.pop("threads", None)
         return {
             "edges_sampled": w["edges_sampled"],
