@@ -172,6 +172,8 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
 # H200s (benchmarks/RESULTS.md, issue 10): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
 # 0.5 ms; one GPU's unchanged.
 SWITCH_INTERVAL = 0.0005
+CHUNK_THREADS = 2  # chunk threads per device (one process)
+CHUNK_AHEAD = 0  # chunks per device submitted beyond its threads (queued, or done and not yet handed over)
 
 
 def build_map(
@@ -304,7 +306,7 @@ def _build_map(
 
     # Two threads per device (one process): while one prepares or collects a chunk, the
     # other's work runs on the device.  Several processes launch in one agreed order: one.
-    threads = 2 if jax.process_count() == 1 else 1
+    threads = CHUNK_THREADS if jax.process_count() == 1 else 1
     sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
@@ -313,7 +315,7 @@ def _build_map(
         for k, (a, b) in enumerate(todo):
             i = k % len(kernel_sets)
             window.append(pools[i].submit(job, kernel_sets[i], a, b))
-            while len(window) >= threads * len(kernel_sets) or (window and k == len(todo) - 1):
+            while len(window) >= (threads + CHUNK_AHEAD) * len(kernel_sets) or (window and k == len(todo) - 1):
                 t = time.perf_counter()
                 samples, idx, rolled = window.popleft().result()
                 t2 = time.perf_counter()
