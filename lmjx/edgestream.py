@@ -172,8 +172,14 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
 # H200s (benchmarks/RESULTS.md, issue 10): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
 # 0.5 ms; one GPU's unchanged.
 SWITCH_INTERVAL = 0.0005
-CHUNK_THREADS = 2  # chunk threads per device (one process)
-CHUNK_AHEAD = 0  # chunks per device submitted beyond its threads (queued, or done and not yet handed over)
+# Chunk threads per device in one process, and chunks per device submitted beyond them
+# (queued, or done and not yet handed over), (one device, several): while one thread's chunk
+# runs on its device, the others draw, copy and place theirs.  Measured on 2 H200s
+# (benchmarks/RESULTS.md, issue 10), 5M edges after compilation: 2 GPUs 10.3-10.5 s with
+# (2, 0), 8.7 s with (3, 1); 1 GPU 17.1-17.7 s with (2, 0), 15.1 s with 3 threads, but then
+# 8.5 GB of host memory, over the 8 GB a one-GPU 5M-edge build keeps to.
+CHUNK_THREADS = (2, 3)
+CHUNK_AHEAD = (0, 1)
 
 
 def build_map(
@@ -304,9 +310,11 @@ def _build_map(
             jobs[k] += v
         return samples, idx, rolled
 
-    # Two threads per device (one process): while one prepares or collects a chunk, the
-    # other's work runs on the device.  Several processes launch in one agreed order: one.
-    threads = CHUNK_THREADS if jax.process_count() == 1 else 1
+    # Threads per device (CHUNK_THREADS) in one process; several processes launch in one
+    # agreed order: one each, nothing ahead.
+    many = int(len(kernel_sets) > 1)
+    threads = CHUNK_THREADS[many] if jax.process_count() == 1 else 1
+    ahead = CHUNK_AHEAD[many] if jax.process_count() == 1 else 0
     sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
@@ -315,7 +323,7 @@ def _build_map(
         for k, (a, b) in enumerate(todo):
             i = k % len(kernel_sets)
             window.append(pools[i].submit(job, kernel_sets[i], a, b))
-            while len(window) >= (threads + CHUNK_AHEAD) * len(kernel_sets) or (window and k == len(todo) - 1):
+            while len(window) >= (threads + ahead) * len(kernel_sets) or (window and k == len(todo) - 1):
                 t = time.perf_counter()
                 samples, idx, rolled = window.popleft().result()
                 t2 = time.perf_counter()
