@@ -13,10 +13,14 @@ import sys
 from pathlib import Path
 
 
-def load(path: Path) -> dict:
-    """The build's edge figures (a JSON file may carry a line of other output before it)."""
+def load(path: Path) -> dict | None:
+    """The build's edge figures (a JSON file may carry a line of other output before it);
+    None for a run that wrote none (it failed or timed out)."""
     text = path.read_text()
-    return json.JSONDecoder().raw_decode(text[text.index("{") :])[0]["edges"]
+    try:
+        return json.JSONDecoder().raw_decode(text[text.index("{") :])[0]["edges"]
+    except (ValueError, KeyError):
+        return None
 
 
 def main(paths: list[str]) -> int:
@@ -24,17 +28,23 @@ def main(paths: list[str]) -> int:
         print(__doc__.strip().splitlines()[-1].strip(), file=sys.stderr)
         return 2
     runs: dict[int, list[tuple[float, float]]] = {}
+    by_run: dict[str, dict[int, tuple[float, float]]] = {}  # "speedup5m_2": {GPUs: figures}
     for p in sorted(paths):
         e = load(Path(p))
+        if e is None:
+            print(f"{Path(p).name}: no build figures (the run failed?), left out", file=sys.stderr)
+            continue
         devices = int(e["devices"])
-        runs.setdefault(devices, []).append((float(e["seconds"]), float(e["edges_wall_seconds"])))
+        figures = (float(e["seconds"]), float(e["edges_wall_seconds"]))
+        runs.setdefault(devices, []).append(figures)
+        by_run.setdefault(Path(p).stem.rsplit("_", 1)[0], {})[devices] = figures
         print(f"{Path(p).name}: {devices} GPU(s), {e['seconds']:.2f} s after compilation, "
               f"{e['edges_wall_seconds']:.2f} s to the file, {e['edges_valid']:,} valid edges")  # fmt: skip
     if 1 not in runs or len(runs) < 2:
         print("need runs on 1 GPU and on more", file=sys.stderr)
         return 2
     most = max(runs)
-    pairs = list(zip(runs[1], runs[most], strict=False))  # the runs made one after the other
+    pairs = [(r[1], r[most]) for r in by_run.values() if 1 in r and most in r]  # runs made one after the other
     for i, what in enumerate(("after compilation", "to the finished file")):
         print(f"speed-up {what}, run by run: " + ", ".join(f"{a[i] / b[i]:.2f}x" for a, b in pairs))
     for i, what in enumerate(("after compilation", "to the finished file")):

@@ -488,8 +488,8 @@ def pack_chunk(
     lens = (samples.length[keep] + 1).astype(np.int32)  # states per edge
     # the stored states: each valid edge's first `lens` steps (roll_out's trajectories are the
     # valid edges' only), as flat rows of the (edge, step) arrays (a take beats 2-D indexing)
-    steps = out["q"].shape[1] if out["q"].ndim == 3 else 0
-    flat = np.flatnonzero(np.arange(steps)[None, :] < lens[:, None])
+    flat = np.flatnonzero(np.arange(out["q"].shape[1])[None, :] < lens[:, None])
+    assert len(flat) == lens.sum(), "an edge longer than its rolled-out trajectory"
 
     def rows_of(a: np.ndarray) -> np.ndarray:
         return np.take(a.reshape(-1, a.shape[-1]), flat, axis=0)
@@ -542,7 +542,8 @@ def index_pairs(
     """(cell, edge) pairs, unique and sorted by cell then edge: the edges (numbered as
     `length` lists them) whose point passes over a reach cell with the link's lowest surface
     at most `height` above the table.  Each step segment is sampled at `substeps` points, so
-    a point moving up to a cell per step is not missed."""
+    a point moving up to a cell per step is not missed (in effect: segments with both ends
+    well above `height` hold no low point and are skipped)."""
     ny, nx = reach.labels.shape
     cell = reach.config.cell
     x0 = reach.xs[0] - cell / 2

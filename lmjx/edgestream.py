@@ -5,17 +5,19 @@ The work, for a map `<out>`:
      (`RATES`); a file system without the room for it stops the build before it starts,
      and a build of more than a day needs `yes=True` (`--yes`);
   2. the Reach-Ability map, kept in `<out>.partial/reach.h5`;
-  3. the edges in chunks [a, b) of the sampling order: two host threads per device each
-     take whole chunks, drawing, solving and rolling them out on their device (while one
-     prepares or collects, the other's work runs); in edge order, packers pack each chunk's
+  3. the edges in chunks [a, b) of the sampling order: host threads per device
+     (`CHUNK_THREADS`) each take whole chunks, drawing, solving and rolling them out on their
+     device (while one's work runs there, the others prepare or collect theirs), with
+     `CHUNK_AHEAD` more chunks per device queued; in edge order, packers pack each chunk's
      valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them to
      `<out>.partial/edges-<a>-<b>.chunk` (`chunkfile`), and a process of its own appends
      them to the map being written in the partial folder (`mapwriter`);
   4. at the end, in that process, the spatial index (sorted cell range by cell range,
      from the saved chunks); then the map is renamed to `<out>` and the partial folder
      removed.
-Memory stays bounded whatever the number of edges: two chunks per device in flight, a few
-packing units, a few chunks read ahead by the writing process, one index range at the end.
+Memory stays bounded whatever the number of edges: a few chunks per device in flight (so it
+grows with the devices: 7 GB on one H200, 14 GB on two for case 2), a few packing units per
+device, a few chunks read ahead by the writing process, one index range at the end.
 Disk: the partial chunks and the map side by side.
 
 Resumable: killed at any point (kill -9 included), the same command starts again from what
