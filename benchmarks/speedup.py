@@ -27,7 +27,6 @@ def main(paths: list[str]) -> int:
     if not paths:
         print(__doc__.strip().splitlines()[-1].strip(), file=sys.stderr)
         return 2
-    runs: dict[int, list[tuple[float, float]]] = {}
     by_run: dict[str, dict[int, tuple[float, float]]] = {}  # "speedup5m_2": {GPUs: figures}
     for p in sorted(paths):
         e = load(Path(p))
@@ -36,10 +35,13 @@ def main(paths: list[str]) -> int:
             continue
         devices = int(e["devices"])
         figures = (float(e["seconds"]), float(e["edges_wall_seconds"]))
-        runs.setdefault(devices, []).append(figures)
         by_run.setdefault(Path(p).stem.rsplit("_", 1)[0], {})[devices] = figures
         print(f"{Path(p).name}: {devices} GPU(s), {e['seconds']:.2f} s after compilation, "
               f"{e['edges_wall_seconds']:.2f} s to the file, {e['edges_valid']:,} valid edges")  # fmt: skip
+    runs: dict[int, list[tuple[float, float]]] = {}  # GPUs: every run's figures
+    for r in by_run.values():
+        for devices, figures in r.items():
+            runs.setdefault(devices, []).append(figures)
     if 1 not in runs or len(runs) < 2:
         print("need runs on 1 GPU and on more", file=sys.stderr)
         return 2

@@ -7,8 +7,8 @@ The work, for a map `<out>`:
   2. the Reach-Ability map, kept in `<out>.partial/reach.h5`;
   3. the edges in chunks [a, b) of the sampling order: host threads per device
      (`CHUNK_THREADS`) each take whole chunks, drawing, solving and rolling them out on their
-     device (while one's work runs there, the others prepare or collect theirs), with
-     `CHUNK_AHEAD` more chunks per device queued; in edge order, packers pack each chunk's
+     device (while one's work runs there, the others prepare or collect theirs), with a
+     chunk more per device queued on several devices; in edge order, packers pack each chunk's
      valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them to
      `<out>.partial/edges-<a>-<b>.chunk` (`chunkfile`), and a process of its own appends
      them to the map being written in the partial folder (`mapwriter`);
@@ -175,13 +175,12 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
 # 0.5 ms; one GPU's unchanged.
 SWITCH_INTERVAL = 0.0005
 # Chunk threads per device in one process, and chunks per device submitted beyond them
-# (queued, or done and not yet handed over), (one device, several): while one thread's chunk
+# (queued, or done and not yet handed over), for one device and for several: while one thread's chunk
 # runs on its device, the others draw, copy and place theirs.  Measured on 2 H200s
 # (benchmarks/RESULTS.md, issue 10), 5M edges after compilation: 2 GPUs 10.3-10.5 s with
 # (2, 0), 8.7 s with (3, 1); 1 GPU 17.1-17.7 s with (2, 0), 15.1 s with 3 threads, but then
 # 8.5 GB of host memory, over the 8 GB a one-GPU 5M-edge build keeps to.
-CHUNK_THREADS = (2, 3)
-CHUNK_AHEAD = (0, 1)
+CHUNK_THREADS = {"one": (2, 0), "several": (3, 1)}  # (threads, ahead)
 
 
 def build_map(
@@ -314,9 +313,10 @@ def _build_map(
 
     # Threads per device (CHUNK_THREADS) in one process; several processes launch in one
     # agreed order: one each, nothing ahead.
-    many = int(len(kernel_sets) > 1)
-    threads = CHUNK_THREADS[many] if jax.process_count() == 1 else 1
-    ahead = CHUNK_AHEAD[many] if jax.process_count() == 1 else 0
+    if jax.process_count() == 1:
+        threads, ahead = CHUNK_THREADS["several" if len(kernel_sets) > 1 else "one"]
+    else:
+        threads, ahead = 1, 0
     sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
