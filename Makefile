@@ -1,31 +1,40 @@
 # lmjx: two commands do everything on a fresh machine.
-#   make run    create .venv, install the pinned dependencies, build the case-2 map (reach map +
-#               10,000 sampled edges) on the CPU
-#   make test   the same set-up, then the test suite
+#   make run    create .venv, install what running needs (requirements.lock), build the case-2
+#               map (reach map + 10,000 sampled edges) on the CPU
+#   make test   the same set-up plus the tests' packages (requirements-test.lock: pytest, ruff,
+#               torch, pytorch_kinematics, PyBullet), then ruff and the test suite
+# The lock files are complete, so pip installs them as they are (--no-deps), and without
+# byte-compiling every module up front (--no-compile: Python compiles what it imports).
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
+PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-compile
+RUN_STAMP := $(VENV)/.installed-run
+TEST_STAMP := $(VENV)/.installed-test
 
 .PHONY: run test lint bench clean
 
-$(STAMP): pyproject.toml requirements.lock
+$(RUN_STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
-	touch $(STAMP)
+	$(PIP) -r requirements.lock
+	$(PIP) -e .
+	touch $@
 
-run: $(STAMP)
+$(TEST_STAMP): $(RUN_STAMP) requirements-test.lock
+	$(PIP) -r requirements-test.lock
+	touch $@
+
+run: $(RUN_STAMP)
 	$(BIN)/lmjx build-map --failure case2 --out maps/case2.h5
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks
 	$(BIN)/python -m pytest -q --durations=15 tests
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks
 
-bench: $(STAMP)
+bench: $(TEST_STAMP)
 	$(BIN)/lmjx bench
 
 clean:

@@ -37,11 +37,13 @@ REASONS = ("ok", "position", "velocity", "acceleration", "torque", "self_collisi
 
 
 class Limits(NamedTuple):
-    """Joint limits and friction (numpy constants, all joints)."""
+    """Joint limits and friction, all joints.  The limits are numpy arrays (folded into the
+    program as constants) or JAX arrays (inputs: one program for any limits); the friction
+    parameters are numpy constants."""
 
-    qd_max: np.ndarray  # (nj,) [rad/s]
-    qdd_max: np.ndarray  # (nj,) [rad/s^2]
-    tau_max: np.ndarray  # (nj,) [Nm]
+    qd_max: np.ndarray | jnp.ndarray  # (nj,) [rad/s]
+    qdd_max: np.ndarray | jnp.ndarray  # (nj,) [rad/s^2]
+    tau_max: np.ndarray | jnp.ndarray  # (nj,) [Nm]
     friction: np.ndarray  # (3, nj) Gaz et al. phi1, phi2, phi3
 
 
@@ -116,6 +118,13 @@ def _manipulability(jac: jnp.ndarray) -> Scalar:
     return cholesky_sqrt_det(a)
 
 
+def _per_joint(x, idx: np.ndarray) -> list:
+    """The entries `idx` of a limit: Python floats from numpy (constants), scalars of a JAX array (inputs)."""
+    if isinstance(x, np.ndarray):
+        return [float(v) for v in x[idx]]
+    return [x[int(j)] for j in idx]
+
+
 def edge_rollout(
     arm: ArmModel,
     inertials: Inertials,
@@ -132,7 +141,7 @@ def edge_rollout(
     """Roll out one edge.
 
     Args:
-      arm, inertials, limits: the robot.
+      arm, inertials, limits: the robot (`Limits`: constants or inputs).
       settings: static rollout parameters.
       free: indices of the free joints (static); q_fixed: (nj,) locked angles (numpy: folded
         in as constants; a JAX array: inputs).
@@ -146,9 +155,7 @@ def edge_rollout(
     free_idx = np.asarray(free)
     lo = [float(x) for x in arm.lower[free_idx]]
     hi = [float(x) for x in arm.upper[free_idx]]
-    qd_max = [float(x) for x in limits.qd_max[free_idx]]
-    qdd_max = [float(x) for x in limits.qdd_max[free_idx]]
-    tau_max = [float(x) for x in limits.tau_max[free_idx]]
+    qd_max, qdd_max, tau_max = (_per_joint(x, free_idx) for x in (limits.qd_max, limits.qdd_max, limits.tau_max))
     bodies = [int(arm.site_body[s]) for s in sites]
     all_caps = list(range(len(arm.cap_r)))
     tab = np.asarray(arm.table_caps)

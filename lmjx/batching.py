@@ -19,6 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 
 _COMPILED: dict[tuple, tuple[Callable, dict[str, tuple[tuple[int, ...], np.dtype]]]] = {}
+_COMPILING: dict[tuple, threading.Lock] = {}  # one lock per program: threads wanting it compile it once
+_COMPILING_LOCK = threading.Lock()
 _SOURCES = ("batching.py", "kernels/__init__.py")  # with every kernels/*.py: what a traced program depends on
 KEEP_BLOCKS = 16  # blocks a device returns its kept rows in (see ChunkedKernel)
 
@@ -175,10 +177,18 @@ class ChunkedKernel:
         plain = {k: v for k, v in self._out.items() if "#" not in k}
         return plain | {k.removesuffix("#0"): v for k, v in self._out.items() if k.endswith("#0")}
 
-    def _build(self) -> None:
+    def compile(self) -> None:
+        """Compile the program now (it is otherwise compiled by the first `run`).  Kernels
+        with the same key share one compilation, also when threads ask for it at once."""
         with self._lock:
             if self._fn is None:
-                self._build_locked()
+                t0 = time.perf_counter()
+                with _COMPILING_LOCK:
+                    program = _COMPILING.setdefault(self.placed, threading.Lock())
+                with program:
+                    waited = time.perf_counter() - t0  # another thread was compiling this program
+                    self._build_locked()
+                self.compile_seconds += waited
 
     def _build_locked(self) -> None:
         if self.placed in _COMPILED:
@@ -290,7 +300,7 @@ class ChunkedKernel:
         row j (the j-th kept item) at row `kept_dest(keep)[j]`, where `keep` is the (n,)
         `keep_by` mask (each kept row is copied once, straight to its place)."""
         if self._fn is None:
-            self._build()
+            self.compile()
         assert self._fn is not None
         t0 = time.perf_counter()
         n = len(arrays[0])

@@ -29,7 +29,7 @@ import numpy as np
 from .batching import ChunkedKernel, backend, device_description
 from .errors import ConfigError
 from .failure import Failure
-from .ik_batch import IKBatch, default_ik_settings
+from .ik_batch import IKBatch, default_chunk, default_ik_settings
 from .kernels.rollout import REASONS, Limits, RolloutSettings, edge_rollout
 from .progress import Progress
 from .reach import NPM, ReachResult
@@ -229,7 +229,13 @@ class EdgeSamples:
 class EdgeKernels:
     """The start IK and the rollout programs of one failure's edges, made once per build
     with fixed launch sizes (so every chunk reuses them).  `sharded` splits every launch
-    over all devices of all processes; `device` runs them on that device alone."""
+    over all devices of all processes; `device` runs them on that device alone.
+
+    The start IK is the Reach-Ability map's own program where it can be (not sharded): the
+    same sites (the TCP first, then the interaction points: an edge's point `which` is IK
+    site `which + 1`), settings and launch size (`ik_chunk`, the map's), so a build
+    compiles one IK program, not two.  The joint limits are inputs of the rollout, not
+    constants of it: lowered limits (`limits`) reuse the program."""
 
     def __init__(
         self,
@@ -240,11 +246,14 @@ class EdgeKernels:
         sharded: bool = False,
         cube_half: float = 0.025,
         device=None,
+        limits: Limits | None = None,
+        ik_chunk: int | None = None,
     ) -> None:
         self.robot = robot
         self.failure = failure
         self.config = config
         self.sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
+        self.ik_sites = (robot.tcp_site, *self.sites)
         devices = 1
         if sharded and device is None:
             from .sharding import device_count
@@ -253,31 +262,41 @@ class EdgeKernels:
         per_chunk = min(config.edges_per_chunk(devices), n)
         kchunk = config.kernel_chunk()
         m = config.ik_restarts
+        if sharded:  # per device: the launches of a chunk, padded to whole blocks
+            ik_chunk = min(kchunk * m, -(-per_chunk * m // (1024 * devices)) * 1024)
         self.ik = IKBatch(
             robot,
             failure,
-            self.sites,
+            self.ik_sites,
             default_ik_settings(iterations=config.ik_iterations, cube_half=cube_half),
-            min(kchunk * m, -(-per_chunk * m // (1024 * devices)) * 1024),
+            ik_chunk or default_chunk(),
             sharded=sharded,
             device=device,
         )
         free = failure.free(robot.nq)
         q_fixed = failure.q_fixed(robot.nq)
-        limits = Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
+        limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
+        friction = limits.friction
         settings = config.rollout_settings()
         sites = self.sites
 
-        def one(site, q0, twist, length):
+        def one(qd_max, qdd_max, tau_max, site, q0, twist, length):
             arm, inertials = robot.arm, robot.inertials
-            return edge_rollout(arm, inertials, limits, settings, free, q_fixed, sites, site, q0, twist, length)
+            lim = Limits(qd_max, qdd_max, tau_max, friction)
+            return edge_rollout(arm, inertials, lim, settings, free, q_fixed, sites, site, q0, twist, length)
 
+        shared = [np.asarray(x, np.float32) for x in (limits.qd_max, limits.qdd_max, limits.tau_max)]
         inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
-        key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings)
+        key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings, friction.tobytes())
         roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
         # only the valid edges' trajectories leave the device (about a quarter of them)
-        self.rollout = ChunkedKernel(key, one, [], inputs, roll_chunk, sharded=sharded, keep_by="valid",
+        self.rollout = ChunkedKernel(key, one, shared, inputs, roll_chunk, sharded=sharded, keep_by="valid",
                                      kept=TRAJECTORIES, device=device)  # fmt: skip
+
+    def warm(self) -> None:
+        """Compile the programs now (e.g. in a thread of its own while other work runs)."""
+        self.ik.compile()
+        self.rollout.compile()
 
     @property
     def compile_seconds(self) -> float:
@@ -333,7 +352,7 @@ def solve_starts(draws: EdgeDraws, kernels: EdgeKernels, progress: Progress | No
     n, m, nf = draws.q0.shape
     res = kernels.ik.solve(
         np.repeat(draws.targets, m, axis=0),
-        np.repeat(draws.which, m),
+        np.repeat(draws.which + 1, m),  # the IK sites: the TCP, then the points (EdgeKernels)
         np.zeros(n * m, bool),
         draws.q0.reshape(n * m, nf),
         progress=(lambda k: progress.update(k // m)) if progress else None,
@@ -620,7 +639,9 @@ def build_bundle(
     device = device_description()
     t_start = time.perf_counter()
     n = config.n_edges()
-    kernels = EdgeKernels(robot, failure, config, n, sharded, reach.config.object_height / 2)
+    kernels = EdgeKernels(
+        robot, failure, config, n, sharded, reach.config.object_height / 2, ik_chunk=reach.config.chunk
+    )
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress, unit="edge")
     chunks = [
         process_chunk(reach, config, robot, a, b, kernels, bar)

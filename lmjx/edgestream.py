@@ -41,7 +41,9 @@ import json
 import os
 import shutil
 import sys
+import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -280,6 +282,15 @@ def _build_map(
     else:
         has_reach = reach is not None
     device = device_description()
+    half = reach_cfg.object_height / 2
+    if split:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, False, half, device=d, ik_chunk=reach_cfg.chunk)
+                       for d in jax.local_devices()]  # fmt: skip
+    else:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half, ik_chunk=reach_cfg.chunk)]
+    # The edges' programs compile in a thread of their own while the reach map is computed
+    # (they do not depend on it).
+    warmed = _in_background(lambda: [ks.warm() for ks in kernel_sets])
     t0 = time.perf_counter()
     if reach is None:
         # every process computes the reach map (the edges are drawn from it)
@@ -287,11 +298,8 @@ def _build_map(
         if lead and not has_reach:
             write_reach_map(folder / "reach.h5", reach, robot)
     t_reach = time.perf_counter() - t0
-    half = reach_cfg.object_height / 2
-    if split:
-        kernel_sets = [EdgeKernels(robot, failure, config, n, False, half, device=d) for d in jax.local_devices()]
-    else:
-        kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half)]
+    warmed()
+    compiled_before = max(ks.compile_seconds for ks in kernel_sets)
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
@@ -340,7 +348,8 @@ def _build_map(
     finally:
         for pool in pools:
             pool.shutdown(wait=not window, cancel_futures=True)
-    compile_seconds = max(ks.compile_seconds for ks in kernel_sets)  # the devices compile side by side
+    # the devices compile side by side; what compiled before the edges began is not theirs
+    compile_seconds = max(ks.compile_seconds for ks in kernel_sets) - compiled_before
     edge_seconds = time.perf_counter() - t1 - compile_seconds
     summary = {"device": device, "devices": devices, "processes": jax.process_count()}
     if writer is not None:
@@ -357,6 +366,28 @@ def _build_map(
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
     return summary
+
+
+def _in_background(fn: Callable[[], object]) -> Callable[[], None]:
+    """Start `fn` in a daemon thread (an error of the caller's does not wait for it); the
+    function returned waits for it to end and raises its exception, if any."""
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            fn()
+        except BaseException as e:  # handed to whoever waits
+            failed.append(e)
+
+    thread = threading.Thread(target=run, name="lmjx-compile", daemon=True)
+    thread.start()
+
+    def wait() -> None:
+        thread.join()
+        if failed:
+            raise failed[0]
+
+    return wait
 
 
 def _totals(kernel_sets: list[EdgeKernels]) -> dict:

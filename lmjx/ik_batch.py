@@ -101,6 +101,12 @@ class IKBatch:
             return ChunkedKernel((*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk, **where)
         return ChunkedKernel((*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk, **where)
 
+    def compile(self) -> None:
+        """Compile the program now (otherwise the first `solve` does)."""
+        if self._kernel is None:
+            self._kernel = self._make()
+        self._kernel.compile()
+
     def solve(
         self,
         targets: np.ndarray,
