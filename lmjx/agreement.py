@@ -42,16 +42,24 @@ class Decision:
 
 
 def decision_states(
-    robot: Robot, maps: dict[str, MapFile], scenarios: tuple[int, ...], seeds: int, depth: int, candidates: int
+    robot: Robot,
+    maps: dict[str, MapFile],
+    scenarios: tuple[int, ...],
+    seeds: int,
+    depth: int,
+    candidates: int,
+    first_seed: int = 0,
 ) -> list[Decision]:
-    """Decisions with their candidate actions (see the module docstring)."""
+    """Decisions with their candidate actions (see the module docstring), for trial seeds
+    `first_seed` .. `first_seed + seeds - 1` (seed s: layout and "real" world 10,000 + s,
+    the planner's random order from s)."""
     out = []
     for f, mf in maps.items():
         assert mf.edges is not None and mf.reach is not None
         tp = TransitPlanner(robot, mf.failure, batched=True)
         for s in scenarios:
             sc = scenario(s, robot.profile.task_scale)
-            for seed in range(seeds):
+            for seed in range(first_seed, first_seed + seeds):
                 rng = np.random.default_rng(seed)
                 world = SimulatedRealWorld(robot, 10_000 + seed)
                 obs = world.reset(sample_layout(sc, 10_000 + seed), tp.park)

@@ -113,10 +113,13 @@ class ChunkedKernel:
         each device runs the one-device program on `chunk` items, so results do not depend
         on the number of devices.
       keep_by, kept: the outputs named in `kept` come back only for the items whose boolean
-        output `keep_by` is true (in item order, or as `run`'s `kept_dest` places them);
-        the others are never copied off the device.  Each device sorts its kept rows first
-        (stable) and returns them in `KEEP_BLOCKS` blocks, of which only those holding kept
-        rows are copied.
+        output `keep_by` is true (in item order, or as `run`'s `kept_dest` places them).
+      compact: the other items' `kept` rows are never copied off the device: each device
+        sorts its kept rows first (stable) and returns them in `KEEP_BLOCKS` blocks, of
+        which only those holding kept rows are copied.  By default on accelerators, in one
+        process; else every row comes back and the kept ones are selected on the host (a
+        CPU's device memory is the host's: nothing to spare; several processes gather whole
+        outputs), and the program is the one of a kernel with nothing kept.
       device: run on this device (not sharded); by default JAX's default device.
     """
 
@@ -131,6 +134,7 @@ class ChunkedKernel:
         keep_by: str | None = None,
         kept: tuple[str, ...] = (),
         device: jax.Device | None = None,
+        compact: bool | None = None,
     ) -> None:
         from . import sharding
 
@@ -141,15 +145,19 @@ class ChunkedKernel:
         self._lock = threading.Lock()  # several threads may share a kernel: one builds it
         self.sharded = sharded
         self.keep_by, self.kept = keep_by, tuple(kept) if keep_by else ()
-        # One process: blocks of kept rows are copied from each device.  Several processes
-        # gather every output whole (`lmjx.sharding.to_host`) and select on the host.
-        self.compact = bool(self.kept) and jax.process_count() == 1
+        # One process on accelerators: blocks of kept rows are copied from each device.  A
+        # CPU, or several processes (`lmjx.sharding.to_host` gathers whole outputs): every
+        # row comes back and the kept ones are selected on the host.
+        if compact is None:
+            compact = jax.process_count() == 1 and backend() != "cpu"
+        self.compact = bool(self.kept) and compact and jax.process_count() == 1
         self.mesh = None
         if sharded:
             self.mesh = sharding.mesh()
             chunk = chunk * sharding.device_count()
-        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded,
-                    self.keep_by, self.kept, self.compact)  # fmt: skip
+        # the program: a kernel that copies every row is the same program whatever it keeps
+        outputs = (self.keep_by, self.kept) if self.compact else ()
+        self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded, outputs)
         self.placed = (*self.key, device.id if device is not None else None)  # what _COMPILED holds
         self.one = one
         if self.mesh is not None:

@@ -2,7 +2,8 @@
 
 Figures (all on the same task-plane targets, PM mode: TCP at grasp height, tool down):
   * lmjx batched IK (solve only, and solve + acceptance checks) per batch size: solves/s,
-    compile time apart, median of repeats;
+    compile time apart, median of repeats; the Reach-Ability map's program (its sites,
+    settings), one launch per batch;
   * pytorch_kinematics PseudoInverseIK on the same device, same batch and iteration count;
   * a serial PyBullet calculateInverseKinematics loop on PyBullet's own Panda (CPU);
   * whole Reach-Ability maps (after compilation) for none and the robot's presets (the
@@ -28,7 +29,7 @@ from .errors import ConfigError, LmjxError
 from .failure import parse_failure
 from .fileio import check_writable, write_text_atomic
 from .ik_batch import IKBatch, backend, default_ik_settings, device_description
-from .reach import ReachConfig, reach_config, reach_map
+from .reach import ReachConfig, attempt_plan, reach_config, reach_map
 from .robot import Robot, load_robot
 
 
@@ -59,10 +60,10 @@ def bench_lmjx_ik(robot: Robot, sizes: list[int], iterations: int, repeats: int)
 
     failure = parse_failure("none", robot)
     cfg = reach_config(robot)
-    settings = default_ik_settings(iterations=iterations)
+    settings = cfg.ik_settings() if iterations == cfg.iterations else default_ik_settings(iterations=iterations)
     free = failure.free()
     q_fixed = failure.q_fixed()
-    sites = (robot.tcp_site,)
+    sites = attempt_plan(robot, cfg)[0]  # the maps' program: every problem on the TCP, the first of its sites
     rows = []
     for b in sizes:
         rng = np.random.default_rng(1)

@@ -226,6 +226,47 @@ class EdgeSamples:
     q_start: np.ndarray  # (n, nf) float32 start of the free joints (meaningful where has_start)
 
 
+TRAJECTORIES = ("q", "qd", "p")  # the rollout's per-state outputs, (edges, steps + 1, ...)
+
+
+def rollout_kernel(
+    robot: Robot,
+    failure: Failure,
+    config: BundleConfig,
+    chunk: int,
+    limits: Limits | None = None,
+    valid_only: bool = True,
+    sharded: bool = False,
+    device=None,
+    sites: tuple[int, ...] | None = None,
+) -> ChunkedKernel:
+    """The edge rollout of `failure` over launches of `chunk` edges; inputs: (index into
+    `sites`, by default the config's interaction points; start of the free joints; twist;
+    length).  The joint limits (`limits`, default the robot's) are inputs of the program,
+    the same program for any.  With `valid_only` the trajectories (`TRAJECTORIES`) come back
+    for the valid edges only (the others never leave the device); else every edge's, whole."""
+    free = failure.free(robot.nq)
+    q_fixed = failure.q_fixed(robot.nq)
+    limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
+    friction = limits.friction
+    settings = config.rollout_settings()
+    sites = sites or tuple(robot.interaction_points[name] for name in config.interaction_points)
+    arm, inertials = robot.arm, robot.inertials
+
+    def one(qd_max, qdd_max, tau_max, site, q0, twist, length):
+        lim = Limits(qd_max, qdd_max, tau_max, friction)
+        return edge_rollout(arm, inertials, lim, settings, free, q_fixed, sites, site, q0, twist, length)
+
+    shared = [np.asarray(x, np.float32) for x in (limits.qd_max, limits.qdd_max, limits.tau_max)]
+    inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
+    key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings, friction.tobytes())
+    if not valid_only:
+        return ChunkedKernel(key, one, shared, inputs, chunk, sharded=sharded, device=device)
+    # only the valid edges' trajectories leave the device (about a quarter of them)
+    return ChunkedKernel(key, one, shared, inputs, chunk, sharded=sharded, keep_by="valid", kept=TRAJECTORIES,
+                         device=device)  # fmt: skip
+
+
 class EdgeKernels:
     """The start IK and the rollout programs of one failure's edges, made once per build
     with fixed launch sizes (so every chunk reuses them).  `sharded` splits every launch
@@ -273,25 +314,8 @@ class EdgeKernels:
             sharded=sharded,
             device=device,
         )
-        free = failure.free(robot.nq)
-        q_fixed = failure.q_fixed(robot.nq)
-        limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
-        friction = limits.friction
-        settings = config.rollout_settings()
-        sites = self.sites
-
-        def one(qd_max, qdd_max, tau_max, site, q0, twist, length):
-            arm, inertials = robot.arm, robot.inertials
-            lim = Limits(qd_max, qdd_max, tau_max, friction)
-            return edge_rollout(arm, inertials, lim, settings, free, q_fixed, sites, site, q0, twist, length)
-
-        shared = [np.asarray(x, np.float32) for x in (limits.qd_max, limits.qdd_max, limits.tau_max)]
-        inputs = [(np.int32, ()), (np.float32, (len(free),)), (np.float32, (6,)), (np.int32, ())]
-        key = ("rollout", robot.model_hash, free, tuple(q_fixed), sites, settings, friction.tobytes())
         roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
-        # only the valid edges' trajectories leave the device (about a quarter of them)
-        self.rollout = ChunkedKernel(key, one, shared, inputs, roll_chunk, sharded=sharded, keep_by="valid",
-                                     kept=TRAJECTORIES, device=device)  # fmt: skip
+        self.rollout = rollout_kernel(robot, failure, config, roll_chunk, limits, sharded=sharded, device=device)
 
     def warm(self) -> None:
         """Compile the programs now (e.g. in a thread of its own while other work runs)."""
@@ -376,9 +400,6 @@ def sample_edges(
 ) -> EdgeSamples:
     """Sample edges [start, stop) (cell, point, target, twist, duration) and solve their starts."""
     return solve_starts(draw_edges(reach, config, robot, start, stop), kernels, progress)
-
-
-TRAJECTORIES = ("q", "qd", "p")  # the rollout's per-state outputs, (edges, steps + 1, ...)
 
 
 def roll_out(

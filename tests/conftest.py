@@ -1,20 +1,155 @@
-"""Shared fixtures.  Tests run on the CPU (C MuJoCo is the reference everywhere)."""
+"""Shared fixtures and helpers.  Tests run on the CPU (C MuJoCo is the reference everywhere).
+
+What is expensive is made once per test run and shared: every kernel is compiled at one
+shape (the shapes the commands use: the Reach-Ability map's IK program per failure, which
+the edges' start IK shares, and one rollout program per failure), the maps are session
+fixtures (`coarse`, `table1`, `table1_ur5e`, `small_map`), and commands run in this process
+(`cli`) unless what is tested needs a process of its own (`cli_process`: signals, several
+host devices or processes).  Compiled programs are kept in one cache folder for the whole
+run, subprocesses included (`LMJX_CACHE_DIR`: JAX's persistent compilation cache and the
+traced kernels), a folder of its own under the temp dir unless the variable is set.
+"""
 
 from __future__ import annotations
 
+import codecs
+import contextlib
+import io
 import os
+import signal
+import subprocess
+import sys
 import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# Compiled kernels are shared by the tests and the CLI processes they start (same machine,
-# same code): a persistent compilation cache spares recompiling the same program.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"lmjx-test-jax-{os.getuid()}"))
+CACHE = Path(os.environ.setdefault("LMJX_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"lmjx-test-{os.getuid()}")))
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(CACHE / "jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 # On a GPU machine JAX and MuJoCo Warp share the GPU: JAX must not take most of it up front.
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
-import numpy as np
-import pytest
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+# The small case-2 map every planning and map-file test shares (tests/golden.py's arguments),
+# built in chunks of 1000 edges.
+SMALL_MAP = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1", "--chunk", "1000")
+# A four-joint arm whose kernels compile several times faster than the Panda's: the tests that
+# compile programs of their own (several host devices or processes) build its maps and atlases.
+TINY_ARM = Path(__file__).parent / "data" / "tiny_arm.xml"
+
+
+def random_configs(robot, n: int, seed: int) -> np.ndarray:
+    return robot.lower + np.random.default_rng(seed).random((n, robot.nq)) * (robot.upper - robot.lower)
+
+
+# ------------------------------------------------------------------------------ commands
+
+
+@dataclass
+class Run:
+    """What a command did: its exit status and what it printed."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+    def ok(self) -> Run:
+        assert self.returncode == 0, self.stderr[-3000:]
+        return self
+
+    def one_line_error(self, message: str) -> None:
+        """Exit status 2, one line on stderr that holds `message`, nothing on stdout."""
+        lines = self.stderr.strip().splitlines()
+        assert self.returncode == 2 and len(lines) == 1 and message in lines[0], (self.returncode, self.stderr)
+        assert "Traceback" not in self.stderr and self.stdout == ""
+
+
+@contextlib.contextmanager
+def _environment(env: dict[str, str] | None) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in env or {}}
+    os.environ.update(env or {})
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def cli(*args: object, env: dict[str, str] | None = None) -> Run:
+    """`lmjx ARGS` in this process: the kernels it compiles are the tests' own (and theirs
+    its).  An exception a command lets through fails the test with its traceback."""
+    from lmjx.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    handler = signal.getsignal(signal.SIGINT)
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), _environment(env):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:  # argparse: --help, usage errors
+            code = e.code if isinstance(e.code, int) else int(e.code is not None)
+        finally:
+            signal.signal(signal.SIGINT, handler)
+    return Run(code, out.getvalue(), err.getvalue())
+
+
+def cli_process(*args: object, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """`lmjx ARGS` in a process of its own (started, not waited for)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "lmjx.cli", *(str(a) for a in args)],
+        env={**os.environ, "JAX_PLATFORMS": "cpu", **(env or {})},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+class Collected:
+    """What a process writes to one of its pipes, collected by a thread as it comes (so a
+    test can wait for a line while the process runs); `text` so far."""
+
+    def __init__(self, pipe) -> None:
+        self.parts: list[str] = []
+        self.thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
+        self.thread.start()
+
+    def _read(self, pipe) -> None:
+        decode = codecs.getincrementaldecoder("utf-8")(errors="replace")
+        for piece in iter(lambda: os.read(pipe.fileno(), 4096), b""):
+            self.parts.append(decode.decode(piece))
+
+    @property
+    def text(self) -> str:
+        return "".join(self.parts)
+
+    def finish(self) -> str:
+        self.thread.join(timeout=60)
+        return self.text
+
+
+def finish(p: subprocess.Popen, timeout: float = 600) -> Run:
+    out, err = p.communicate(timeout=timeout)
+    return Run(p.returncode, out, err)
+
+
+def wait_for(condition: Callable[[], bool], p: subprocess.Popen, what: str, timeout: float = 300) -> None:
+    """Poll until `condition` holds; fail if the process `p` ends first or time runs out."""
+    t0 = time.monotonic()
+    while not condition():
+        assert p.poll() is None, f"the process ended before {what}: {p.communicate()[1][-2000:]}"
+        assert time.monotonic() - t0 < timeout, f"no {what} after {timeout} s"
+        time.sleep(0.02)
+
+
+# ------------------------------------------------------------------------------ robots and maps
 
 
 @pytest.fixture(scope="session")
@@ -22,6 +157,13 @@ def robot():
     from lmjx.robot import load_robot  # imported here: tests/test_plain_reader.py imports no lmjx
 
     return load_robot()
+
+
+@pytest.fixture(scope="session")
+def ur5e():
+    from lmjx.robot import load_robot
+
+    return load_robot("ur5e")
 
 
 @pytest.fixture(scope="session", params=["panda", "ur5e"])
@@ -32,6 +174,60 @@ def arm(request):
     return load_robot(request.param)
 
 
-def random_configs(robot, n: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return robot.lower + rng.random((n, robot.nq)) * (robot.upper - robot.lower)
+class Maps:
+    """Reach-Ability maps of one robot and config, made on first use and kept for the run."""
+
+    def __init__(self, robot, config) -> None:
+        self.robot, self.config, self.maps = robot, config, {}
+
+    def __getitem__(self, spec: str):
+        from lmjx.reach import reach_map
+
+        if spec not in self.maps:
+            self.maps[spec] = reach_map(spec, self.config, robot=self.robot)
+        return self.maps[spec]
+
+
+@pytest.fixture(scope="session")
+def coarse(robot) -> Maps:
+    """The Panda's maps of 5 cm cells (none, case1, case2, ...): the default map's IK
+    program per failure (the same launch size), less work."""
+    from lmjx.reach import ReachConfig
+
+    return Maps(robot, ReachConfig(cell=0.05))
+
+
+@pytest.fixture(scope="session")
+def table1(robot) -> Maps:
+    """The Panda's default maps (Table I)."""
+    from lmjx.reach import ReachConfig
+
+    return Maps(robot, ReachConfig())
+
+
+@pytest.fixture(scope="session")
+def table1_ur5e(ur5e) -> Maps:
+    """The UR5e's default maps (its Table I)."""
+    from lmjx.reach import reach_config
+
+    return Maps(ur5e, reach_config(ur5e))
+
+
+def ik_batch(robot, failure, settings=None, chunk: int | None = None):
+    """An IKBatch on the Reach-Ability map's program for `failure` (its sites: the TCP, then
+    the default interaction points; its settings and launch size): compiled once per run."""
+    from lmjx.ik_batch import IKBatch, default_chunk
+    from lmjx.reach import attempt_plan, reach_config
+
+    config = reach_config(robot)
+    sites = attempt_plan(robot, config)[0]
+    return IKBatch(robot, failure, sites, settings or config.ik_settings(), chunk or default_chunk())
+
+
+@pytest.fixture(scope="session")
+def small_map(tmp_path_factory) -> Path:
+    """The shared case-2 map (SMALL_MAP), built by `lmjx build-map` in this process with
+    its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
+    path = tmp_path_factory.mktemp("small_map") / "case2.h5"
+    cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
+    return path

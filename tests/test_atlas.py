@@ -1,31 +1,28 @@
-"""The failure atlas: the masked IK program against the per-failure one, sharded and
-multi-process runs against a single-device run, and a killed run resumed."""
+"""The failure atlas: the masked IK program against the per-failure one (the Reach-Ability
+map's), sharded and multi-process runs against a single-device run, and a killed run
+resumed."""
 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import random_configs
+from conftest import TINY_ARM, Collected, cli, cli_process, finish, ik_batch, random_configs, wait_for
 
 from lmjx.atlas import AtlasConfig, entries, expected_maps, lock_angles, read_atlas, same_content
 from lmjx.failure import parse_failure
 from lmjx.ik_batch import IKBatch
-from lmjx.kernels.ik import IKSettings
 from lmjx.reach import ReachConfig
 
-SETTINGS = IKSettings(iterations=32)
-# a small atlas: 21 pairs x 1 angle, 5 x 6 cells, 4 attempts of 2 restarts
-TINY = ["--joints", "2", "--angles", "1", "--cell", "0.2", "--attempts", "4", "--restarts", "2", "--iterations", "16",
-        "--group", "3", "--chunk", "128"]  # fmt: skip
+# a small atlas of the four-joint test arm (its program compiles several times faster than the
+# Panda's): 6 pairs x 2 x 2 angles, 4 x 5 cells, 4 attempts of 2 restarts
+TINY = ["--robot", TINY_ARM, "--joints", "2", "--angles", "2", "--cell", "0.2", "--attempts", "4", "--restarts", "2",
+        "--iterations", "16", "--group", "3", "--chunk", "128"]  # fmt: skip
+MAPS = 24
 
 
 def _problems(robot, f, sites, n, seed):
@@ -52,25 +49,28 @@ def _problems(robot, f, sites, n, seed):
 
 
 def _both(robot, spec, n, seed):
+    """The failure's own program (the Reach-Ability map's) and the masked one, with the same
+    sites, settings and launch size, on the same problems (sites: the TCP, hand, wrist)."""
     f = parse_failure(spec, robot)
-    sites = (robot.tcp_site, robot.interaction_points["hand"], robot.interaction_points["wrist"])
-    tgt, site, pm = _problems(robot, f, sites, n, seed)
+    static_batch = ik_batch(robot, f)
+    tgt, site, pm = _problems(robot, f, static_batch.sites, n, seed)
     q0 = random_configs(robot, n, seed + 1).astype(np.float32)
     free = list(f.free())
-    static = IKBatch(robot, f, sites, SETTINGS, 256).solve(tgt, site, pm, q0[:, free])
+    static = static_batch.solve(tgt, site, pm, q0[:, free])
     mask = np.ones((n, 7), np.float32)
     q0m = q0.copy()
     for j, a in f.locked:
         mask[:, j - 1] = 0
         q0m[:, j - 1] = a
-    masked = IKBatch(robot, f, sites, SETTINGS, 256, masked=True).solve(tgt, site, pm, q0m, mask=mask)
+    s = static_batch
+    masked = IKBatch(robot, f, s.sites, s.settings, s.chunk, masked=True).solve(tgt, site, pm, q0m, mask=mask)
     return f, static, masked
 
 
 def test_masked_program_equals_the_failures_own(robot):
     # Locking the first joints leaves the table-row grouping of the kernel unchanged, so the
     # masked iteration is the same arithmetic as the per-failure program's.
-    # (float32 rounding differs with XLA's fusion, and 32 nonlinear iterations amplify it)
+    # (float32 rounding differs with XLA's fusion, and 48 nonlinear iterations amplify it)
     _, static, masked = _both(robot, "J1=0.4,J2=-0.3", 256, 0)
     np.testing.assert_array_equal(masked["q"][:, :2], np.tile([0.4, -0.3], (256, 1)).astype(np.float32))
     diff = np.abs(masked["q"] - static["q"]).max(axis=1)
@@ -100,38 +100,25 @@ def test_entries_count_and_angles(robot):
     assert len(keys) == 1134  # no map twice
 
 
-def _lmjx(args, env=None, **kw):
-    e = dict(os.environ, JAX_PLATFORMS="cpu")
-    e.update(env or {})
-    return subprocess.Popen([sys.executable, "-m", "lmjx.cli", *args], env=e, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)  # fmt: skip
-
-
-def _run(args, env=None, timeout=600):
-    p = _lmjx(args, env)
-    out, err = p.communicate(timeout=timeout)
-    assert p.returncode == 0, err
-    return out
-
-
 @pytest.fixture(scope="module")
 def single(tmp_path_factory):
     path = tmp_path_factory.mktemp("atlas") / "single.h5"
-    _run(["atlas", *TINY, "--no-shard", "--out", str(path), "--json"])
+    cli("atlas", *TINY, "--no-shard", "--out", path, "--json").ok()
     return path
 
 
-def test_single_device_atlas_is_complete(single, robot):
-    st = read_atlas(single, robot)
-    assert st.n == 21 and st.done.all()
+def test_single_device_atlas_is_complete(single):
+    st = read_atlas(single)
+    assert st.n == MAPS and st.done.all()
     a = st.areas()
     assert np.all(a["npm_pm"] >= a["pm"]) and a["npm_pm"].max() > 0
 
 
 def test_four_host_devices_give_the_same_atlas(single, tmp_path):
     out = tmp_path / "four.h5"
-    s = json.loads(_run(["atlas", *TINY, "--out", str(out), "--json"],
-                        env={"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}))  # fmt: skip
+    four = {"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    p = cli_process("atlas", *TINY, "--out", out, "--json", env=four)
+    s = json.loads(finish(p).ok().stdout)
     assert s["devices"] == 4
     assert same_content(single, out) == []
 
@@ -141,10 +128,10 @@ def test_two_processes_on_loopback_give_the_same_atlas(single, tmp_path):
         sk.bind(("127.0.0.1", 0))
         port = sk.getsockname()[1]
     common = ["atlas", *TINY, "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--json"]
-    procs = [_lmjx([*common, "--out", str(tmp_path / f"p{i}.h5"), "--process-id", str(i)]) for i in range(2)]
-    outs = [p.communicate(timeout=600) for p in procs]
-    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
-    text = outs[0][0]
+    procs = [cli_process(*common, "--out", tmp_path / f"p{i}.h5", "--process-id", i) for i in range(2)]
+    runs = [finish(p) for p in procs]
+    assert all(r.returncode == 0 for r in runs), [r.stderr[-2000:] for r in runs]
+    text = runs[0].stdout
     assert json.loads(text[text.index("{\n") :])["processes"] == 2  # (gloo may log a line before)
     assert same_content(single, tmp_path / "p0.h5") == []
     assert not (tmp_path / "p1.h5").exists()  # only process 0 writes
@@ -153,17 +140,17 @@ def test_two_processes_on_loopback_give_the_same_atlas(single, tmp_path):
 def test_killed_run_resumes_to_the_same_file(single, tmp_path):
     out = tmp_path / "resumed.h5"
     partial = Path(str(out) + ".partial")
-    p = _lmjx(["atlas", *TINY, "--no-shard", "--out", str(out)])
-    t0 = time.time()
-    while not partial.exists() and p.poll() is None and time.time() - t0 < 600:
-        time.sleep(0.05)
+    p = cli_process("atlas", *TINY, "--no-shard", "--out", out)
+    err = Collected(p.stderr)
+    wait_for(partial.exists, p, "the partial atlas")
     p.send_signal(signal.SIGKILL)
-    p.communicate()
+    p.wait(timeout=60)
+    err.finish()
     assert partial.exists() and not out.exists(), "the run finished before it could be killed"
     done_before = int(read_atlas(partial).done.sum())
-    assert 0 < done_before < 21
-    s = json.loads(_run(["atlas", *TINY, "--no-shard", "--out", str(out), "--json"]))
-    assert s["maps_this_run"] == 21 - done_before  # nothing computed twice
+    assert 0 < done_before < MAPS
+    s = json.loads(cli("atlas", *TINY, "--no-shard", "--out", out, "--json").ok().stdout)
+    assert s["maps_this_run"] == MAPS - done_before  # nothing computed twice
     assert out.exists() and not partial.exists()
     assert same_content(single, out) == []
 
@@ -174,23 +161,21 @@ def test_bad_input_one_line_exit_2(tmp_path):
         (["--joints", "x"], "--joints"),
         (["--coordinator", "nohost", "--num-processes", "2"], "host:port"),
     ):
-        p = _lmjx(["atlas", *args, "--out", str(tmp_path / "a.h5")])
-        _, err = p.communicate(timeout=120)
-        assert p.returncode == 2 and len(err.strip().splitlines()) == 1 and msg in err, err
+        r = cli("atlas", *args, "--out", tmp_path / "a.h5")
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and msg in r.stderr, r.stderr
 
 
 def test_other_parameters_are_refused(single, tmp_path):
     other = tmp_path / "other.h5"
     other.write_bytes(Path(single).read_bytes())
-    p = _lmjx(["atlas", *TINY, "--seed", "5", "--out", str(other)])
-    _, err = p.communicate(timeout=120)
-    assert p.returncode == 2 and "other parameters" in err, err
+    r = cli("atlas", *TINY, "--seed", "5", "--out", other)
+    assert r.returncode == 2 and "other parameters" in r.stderr, r.stderr
 
 
 def test_plain_reader_reads_the_atlas(single):
     import h5py
 
     with h5py.File(single, "r") as f:
-        assert f.attrs["schema"] == "lmjx-atlas" and f["labels"].shape[0] == 21
+        assert f.attrs["schema"] == "lmjx-atlas" and f["labels"].shape[0] == MAPS
         assert np.isfinite(f["area_npm_pm_m2"][...]).all()
         assert ReachConfig(cell=0.2).cell == f.attrs["cell_m"]

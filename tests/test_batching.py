@@ -1,6 +1,7 @@
 """lmjx.batching.ChunkedKernel: padded chunks give every item's result, and the `kept`
-outputs come back for the kept items only, in item order, copying only the blocks that hold
-them (checked against plain numpy on the same items)."""
+outputs come back for the kept items only, in item order: compacted on the device, copying
+only the blocks that hold them (the accelerators' way, asked for here on the CPU), or
+selected on the host (a CPU's default); checked against plain numpy on the same items."""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ def test_kept_rows_are_the_host_selection(n, chunk, frac):
     rng = np.random.default_rng(n)
     x = rng.random((n, 5)).astype(np.float32)
     x[:, 0] = np.where(rng.random(n) < frac, 0.9, 0.1)
-    k = ChunkedKernel(("test-keep", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",))
+    k = ChunkedKernel(("test-keep", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",),
+                      compact=True)  # fmt: skip
     got = k.run(x)
     want = _reference(x)
     assert set(got) == set(want)
@@ -54,6 +56,13 @@ def test_kept_rows_are_the_host_selection(n, chunk, frac):
     np.testing.assert_array_equal(seen[0], want["keep"])
     np.testing.assert_array_equal(placed["traj"][dest], want["traj"])
     np.testing.assert_array_equal(placed["keep"], want["keep"])
+    # selected on the host (every row copied): the same results, placed the same way
+    host = ChunkedKernel(("test-keep", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",),
+                         compact=False)  # fmt: skip
+    assert not host.compact
+    for name, value in host.run(x).items():
+        np.testing.assert_array_equal(value, got[name])
+    np.testing.assert_array_equal(host.run(x, kept_dest=lambda keep: dest)["traj"][dest], want["traj"])
 
 
 def test_without_keep_every_row_comes_back():
@@ -65,7 +74,8 @@ def test_without_keep_every_row_comes_back():
 
 
 def test_empty_batch_has_the_result_shapes():
-    k = ChunkedKernel(("test-empty",), _one, [], [(np.float32, (5,))], 16, keep_by="keep", kept=("traj",))
+    k = ChunkedKernel(("test-empty",), _one, [], [(np.float32, (5,))], 16, keep_by="keep", kept=("traj",),
+                      compact=True)  # fmt: skip
     got = k.run(np.zeros((0, 5), np.float32))
     assert got["traj"].shape == (0, 5, 3) and got["keep"].shape == (0,)
 
@@ -89,14 +99,14 @@ for n, chunk, frac in [(100, 7, 0.5), (500, 40, 0.3), (64, 64, 1.0), (50, 20, 0.
     x = rng.random((n, 5)).astype(np.float32)
     x[:, 0] = np.where(rng.random(n) < frac, 0.9, 0.1)
     k = ChunkedKernel(("t3", chunk), _one, [], [(np.float32, (5,))], chunk, sharded=True,
-                      keep_by="keep", kept=("traj",))
+                      keep_by="keep", kept=("traj",), compact=True)
     assert k.mesh is not None and k.mesh.size == 3
     got, want = k.run(x), _reference(x)
     assert np.array_equal(got["traj"], want["traj"]) and np.array_equal(got["keep"], want["keep"]), (n, chunk)
     # the one-device program bound to the third device (a build's per-device kernels)
     import jax
     k = ChunkedKernel(("t3", chunk), _one, [], [(np.float32, (5,))], chunk, keep_by="keep", kept=("traj",),
-                      device=jax.devices()[2])
+                      device=jax.devices()[2], compact=True)
     assert k.mesh is None
     got = k.run(x)
     assert k._fn.input_shardings[0][0].device_set == {jax.devices()[2]}

@@ -5,64 +5,58 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
 
-from lmjx.bundle import BundleConfig, build_bundle, index_pairs
+from lmjx.bundle import BundleConfig, build_bundle, index_pairs, rollout_kernel
 from lmjx.errors import ConfigError
 from lmjx.failure import parse_failure
-from lmjx.kernels.rollout import REASONS, Limits, RolloutSettings, edge_rollout
-from lmjx.reach import ReachConfig, reach_map
+from lmjx.kernels.rollout import REASONS, Limits
+from lmjx.mapfile import load_map
+from lmjx.reach import attempt_plan
 from lmjx.rollout_ref import ReferenceRollout
 
-SETTINGS = RolloutSettings(steps=60)
-COARSE = ReachConfig(cell=0.05)
+CONFIG = BundleConfig()  # the edges' settings (100 steps of 0.02 s at most)
+SETTINGS = CONFIG.rollout_settings()
+LONGEST = 60  # the random edges' lengths: up to this many steps
 
 
 @pytest.fixture(scope="module")
-def case2(robot):
-    reach = reach_map("case2", COARSE, robot=robot)
-    return reach, build_bundle(reach, BundleConfig(edges=600, seed=3), robot=robot)
+def case2(robot, small_map):
+    """The run's shared case-2 map: its reach map and its edges (707 of 3,000)."""
+    m = load_map(small_map, robot)
+    return m.reach, m.edges
 
 
 def _random_edges(robot, reach, n, seed, speed=(0.1, 0.8)):
-    """Starts taken from the reach map's solutions, random twists and lengths."""
+    """Starts taken from the reach map's solutions (each with the point its cell was solved
+    for: the TCP, the hand, ...), random twists and lengths."""
     rng = np.random.default_rng(seed)
     cells = np.argwhere(reach.labels > 0)
     pick = cells[rng.integers(0, len(cells), n)]
     free = list(reach.failure.free())
     q0 = np.array([reach.q[i, j][free] for i, j in pick], np.float32)
-    site = np.array([reach.site[i, j] for i, j in pick])
-    sites = tuple(sorted(set(site.tolist())))
-    which = np.array([sites.index(s) for s in site], np.int32)
+    sites = attempt_plan(robot, reach.config)[0]  # the map's sites: the TCP, then the points
+    which = np.array([sites.index(reach.site[i, j]) for i, j in pick], np.int32)
     d = rng.uniform(-1, 1, (n, 6))
     twist = (d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(*speed, (n, 1))).astype(np.float32)
-    length = rng.integers(5, SETTINGS.steps + 1, n).astype(np.int32)
+    length = rng.integers(5, LONGEST + 1, n).astype(np.int32)
     return sites, which, q0, twist, length
 
 
 def _run_kernel(robot, failure, sites, which, q0, twist, length, limits=None):
-    limits = limits or Limits(robot.qd_max, robot.qdd_max, robot.tau_max, robot.friction)
-    free, q_fixed = failure.free(), failure.q_fixed()
-    fn = jax.jit(
-        jax.vmap(
-            lambda s, q, t, n: edge_rollout(
-                robot.arm, robot.inertials, limits, SETTINGS, free, q_fixed, sites, s, q, t, n
-            )
-        )
-    )
-    out = fn(*(jnp.asarray(x) for x in (which, q0, twist, length)))
-    return {k: np.asarray(v) for k, v in out._asdict().items()}
+    """The edges' rollout (their settings; one program per failure and run: the limits are
+    its inputs) on `sites`, every edge's states coming back."""
+    kernel = rollout_kernel(robot, failure, CONFIG, CONFIG.kernel_chunk(), limits, valid_only=False, sites=sites)
+    return kernel.run(which, q0, twist, length)
 
 
 @pytest.mark.parametrize("spec", ["case1", "case2", "none"])
-def test_rollouts_match_c_mujoco_reference(robot, spec):
+def test_rollouts_match_c_mujoco_reference(robot, coarse, spec):
     """Same states, same verdict, same first violating state and reason as the reference."""
     failure = parse_failure(spec, robot)
-    reach = reach_map(failure, COARSE, robot=robot)
+    reach = coarse[spec]
     sites, which, q0, twist, length = _random_edges(robot, reach, 30, seed=7)
     out = _run_kernel(robot, failure, sites, which, q0, twist, length)
     ref = ReferenceRollout(robot, failure, SETTINGS)
@@ -82,7 +76,7 @@ def test_rollouts_match_c_mujoco_reference(robot, spec):
             assert out["peak_torque_ratio"][e] == pytest.approx(ratio, rel=1e-3)
 
 
-def test_every_rejection_reason_is_caught_and_confirmed(robot):
+def test_every_rejection_reason_is_caught_and_confirmed(robot, coarse):
     """Edges that break each limit and each collision type are rejected at the state where the
     C MuJoCo reference finds the same violation.  The Panda's torque limits are not reached by
     these twists, so the torque check is exercised with limits lowered to 30 % (kernel and
@@ -91,7 +85,7 @@ def test_every_rejection_reason_is_caught_and_confirmed(robot):
     found = {}
     for spec in ("case1", "case2"):
         failure = parse_failure(spec, robot)
-        reach = reach_map(failure, COARSE, robot=robot)
+        reach = coarse[spec]
         edges = _random_edges(robot, reach, 400, seed=11, speed=(0.1, 3.0))
         for limits in (None, low_tau):
             out = _run_kernel(robot, failure, *edges, limits)
@@ -194,14 +188,15 @@ def test_index_pairs_equal_every_sampled_point(case2):
 
 
 def test_same_seed_same_bundle(robot, case2):
-    reach, b = case2
-    again = build_bundle(reach, BundleConfig(edges=600, seed=3), robot=robot)
+    reach, _ = case2
+    config = BundleConfig(edges=400, seed=3)
+    b, again = (build_bundle(reach, config, robot=robot) for _ in range(2))
     for f in dataclasses.fields(b):
         if f.name in ("seconds", "compile_seconds", "rollout_seconds", "config", "failure"):
             continue
         x, y = getattr(b, f.name), getattr(again, f.name)
         assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y, f.name
-    other = build_bundle(reach, BundleConfig(edges=600, seed=4), robot=robot)
+    other = build_bundle(reach, dataclasses.replace(config, seed=4), robot=robot)
     assert not np.array_equal(other.twist[:10], b.twist[:10])
 
 

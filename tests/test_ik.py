@@ -1,17 +1,17 @@
-"""IK kernels: round trips, locked joints, limits, acceptance re-verified in C MuJoCo."""
+"""IK kernels: round trips, locked joints, limits, acceptance re-verified in C MuJoCo.  Every
+test runs the Reach-Ability map's program of its failure (`conftest.ik_batch`: its sites,
+the TCP first, its settings and launch size), the program the maps and edges run."""
 
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 import pytest
-from conftest import random_configs
+from conftest import ik_batch, random_configs
 
 from lmjx.failure import parse_failure
-from lmjx.ik_batch import IKBatch
-from lmjx.kernels.ik import IKSettings
 
-SETTINGS = IKSettings(iterations=48)
+TCP, HAND, WRIST = 0, 1, 2  # indices into the program's sites
 
 
 def _reachable_targets(robot, site, n, seed):
@@ -58,19 +58,24 @@ def test_round_trip_position_ik(robot):
     pts = _reachable_targets(robot, site, 150, seed=1)
     n, m_restarts = len(pts), 8
     targets = np.concatenate([pts[:, :2], pts[:, 2:], pts[:, 2:]], axis=1).repeat(m_restarts, 0)
-    batch = IKBatch(robot, failure, (site,), SETTINGS, chunk=1024)
+    batch = ik_batch(robot, failure)
+    assert batch.sites[HAND] == site
     rng = np.random.default_rng(0)
     q0 = (robot.lower + rng.random((len(targets), 7)) * (robot.upper - robot.lower)).astype(np.float32)
-    res = batch.solve(targets, np.zeros(len(targets), np.int32), np.zeros(len(targets), bool), q0)
+    res = batch.solve(targets, np.full(len(targets), HAND, np.int32), np.zeros(len(targets), bool), q0)
     found = res["ok"].reshape(n, m_restarts).any(axis=1)
     assert found.mean() >= 0.95
     _verify_in_mujoco(robot, failure, res, targets, np.full(len(targets), site), np.zeros(len(targets), bool))
 
 
-@pytest.mark.parametrize("spec", ["case1", "case2", "J4=-1.2,J7=0.3"])
-def test_locked_joints_limits_and_acceptance(robot, spec):
+@pytest.mark.parametrize("name, spec", [("panda", "case1"), ("panda", "case2"), ("ur5e", "case1")])
+def test_locked_joints_limits_and_acceptance(name, spec):
+    from lmjx.robot import load_robot
+
+    robot = load_robot(name)
     failure = parse_failure(spec, robot)
-    sites = (robot.tcp_site, robot.interaction_points["hand"], robot.interaction_points["wrist"])
+    batch = ik_batch(robot, failure)
+    sites = batch.sites[:3]  # the TCP, the hand, the wrist
     rng = np.random.default_rng(2)
     n = 1536
     xy = np.stack([rng.uniform(0.1, 1.0, n), rng.uniform(-0.6, 0.6, n)], axis=1)
@@ -84,7 +89,7 @@ def test_locked_joints_limits_and_acceptance(robot, spec):
     q0 = (robot.lower[list(free)] + rng.random((n, len(free))) * (robot.upper - robot.lower)[list(free)]).astype(
         np.float32
     )
-    res = IKBatch(robot, failure, sites, SETTINGS, chunk=512).solve(targets, which.astype(np.int32), pm, q0)
+    res = batch.solve(targets, which.astype(np.int32), pm, q0)
     locked = [j - 1 for j in failure.locked_joints]
     # Locked joints stay exactly at their values and limits hold, for every result.
     assert np.array_equal(
@@ -99,15 +104,15 @@ def test_locked_joints_limits_and_acceptance(robot, spec):
 def test_pm_rejects_tool_pointing_up(robot):
     """A PM target reachable only with the tool pointing up is rejected; as NPM it is found."""
     failure = parse_failure("none", robot)
-    site = robot.tcp_site
     # Straight above the shoulder, higher than the arm can reach tool-down.
     target = np.array([[0.0, 0.0, 1.18, 1.18]])
     rng = np.random.default_rng(0)
     q0 = (robot.lower + rng.random((64, 7)) * (robot.upper - robot.lower)).astype(np.float32)
-    batch = IKBatch(robot, failure, (site,), SETTINGS, chunk=64)
+    batch = ik_batch(robot, failure)
+    assert batch.sites[TCP] == robot.tcp_site
     t = np.repeat(target, 64, axis=0)
-    pm = batch.solve(t, np.zeros(64, np.int32), np.ones(64, bool), q0)
-    npm = batch.solve(t, np.zeros(64, np.int32), np.zeros(64, bool), q0)
+    pm = batch.solve(t, np.full(64, TCP, np.int32), np.ones(64, bool), q0)
+    npm = batch.solve(t, np.full(64, TCP, np.int32), np.zeros(64, bool), q0)
     assert not pm["ok"].any()
     assert npm["ok"].any()
     assert np.all(npm["tool_z"][npm["ok"]] > 0)
@@ -115,11 +120,11 @@ def test_pm_rejects_tool_pointing_up(robot):
 
 def test_same_inputs_same_results(robot):
     failure = parse_failure("case2", robot)
-    sites = (robot.tcp_site,)
     rng = np.random.default_rng(4)
     t = np.concatenate([rng.uniform(0.2, 0.7, (300, 2)), np.full((300, 2), 0.025)], axis=1)
     q0 = (robot.lower[:5] + rng.random((300, 5)) * (robot.upper - robot.lower)[:5]).astype(np.float32)
-    a = IKBatch(robot, failure, sites, SETTINGS, chunk=128).solve(t, np.zeros(300, np.int32), np.ones(300, bool), q0)
-    b = IKBatch(robot, failure, sites, SETTINGS, chunk=128).solve(t, np.zeros(300, np.int32), np.ones(300, bool), q0)
+    site, pm = np.full(300, TCP, np.int32), np.ones(300, bool)
+    a = ik_batch(robot, failure).solve(t, site, pm, q0)
+    b = ik_batch(robot, failure).solve(t, site, pm, q0)
     for k in a:
         assert np.array_equal(a[k], b[k])

@@ -48,10 +48,9 @@ def test_jacobians_match_mujoco(arm, configs):
     m = arm.mj
     d = mujoco.MjData(m)
     names = ["tcp", "ip_hand", "ip_wrist", "ip_forearm", "ip_flange", "ip_elbow"]
-    for name in names:
-        sid = arm.site_index(name)
-        jac = jax.jit(jax.vmap(lambda q, sid=sid: site_jacobian_array(arm.arm, q, sid)))
-        jt, jr = jac(jnp.asarray(configs, jnp.float32))
+    sids = [arm.site_index(name) for name in names]
+    every = jax.jit(jax.vmap(lambda q: [site_jacobian_array(arm.arm, q, sid) for sid in sids]))  # one program
+    for name, sid, (jt, jr) in zip(names, sids, every(jnp.asarray(configs, jnp.float32)), strict=True):
         for i, q in enumerate(configs):
             d.qpos[:] = q
             mujoco.mj_kinematics(m, d)

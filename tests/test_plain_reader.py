@@ -1,11 +1,8 @@
 """Reading a built map the way maps/README.md tells a user of plain h5py, MATLAB or C++ to:
-this module imports no lmjx; the map is built by the `lmjx` command in a subprocess."""
+this module imports no lmjx; the map is the run's shared one, built by the `lmjx build-map`
+command (tests/conftest.py)."""
 
 from __future__ import annotations
-
-import os
-import subprocess
-import sys
 
 import h5py
 import mujoco
@@ -14,15 +11,8 @@ import pytest
 
 
 @pytest.fixture(scope="module")
-def map_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("plain") / "case2.h5"
-    r = subprocess.run(
-        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "400", "--cell", "0.05",
-         "--seed", "2", "--out", str(path)],
-        capture_output=True, text=True, timeout=900, env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    return path
+def map_file(small_map):
+    return small_map
 
 
 def test_reach_map_by_the_schema(map_file):

@@ -11,6 +11,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from conftest import cli
 
 from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
 from lmjx.executor import SimulatedRealWorld, real_physics
@@ -21,20 +22,6 @@ from lmjx.scenarios import in_goal, sample_layout, scenario
 from lmjx.scene import build_scene, object_qpos, read_objects, set_state
 from lmjx.simulate import CpuSimulator
 from lmjx.trial import run_trial, setup_trial
-
-ENV = {**os.environ, "JAX_PLATFORMS": "cpu"}
-
-
-@pytest.fixture(scope="module")
-def small_map(tmp_path_factory):
-    path = tmp_path_factory.mktemp("plan") / "case2.h5"
-    r = subprocess.run(
-        [sys.executable, "-m", "lmjx.cli", "build-map", "--failure", "case2", "--edges", "3000", "--cell", "0.05",
-         "--seed", "1", "--out", str(path)],
-        capture_output=True, text=True, timeout=900, env=ENV,
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    return path
 
 
 @pytest.mark.parametrize("n", [1, 2, 3])
@@ -156,38 +143,31 @@ def test_trials_run_and_repeat(robot, small_map, asm):
 
 
 def test_plan_and_evaluate_cli(small_map, tmp_path):
-    def run(*args):
-        return subprocess.run([sys.executable, "-m", "lmjx.cli", *args], capture_output=True, text=True, env=ENV,
-                              timeout=900)  # fmt: skip
-
-    r = run("plan", "--map", str(small_map), "--scenario", "2", "--asm", "greedy", "--candidates", "8",
-            "--max-actions", "2", "--json")  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    r = cli("plan", "--map", small_map, "--scenario", "2", "--asm", "greedy", "--candidates", "8",
+            "--max-actions", "2", "--json").ok()  # fmt: skip
     out = json.loads(r.stdout)
     assert {"success", "actions", "planning_s", "execution_s"} <= set(out)
     for args, message in (
-        (("plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
-        (("plan", "--map", str(tmp_path / "none.h5"), "--scenario", "1", "--asm", "lazy"), "does not exist"),
-        (("plan", "--map", str(small_map), "--scenario", "4", "--asm", "lazy"), "invalid choice"),
-        (("plan", "--map", str(small_map), "--scenario", "1", "--asm", "clever"), "invalid choice"),
-        (("evaluate", "--maps", str(tmp_path), "--out", str(tmp_path / "e")), "does not exist"),
-        (("evaluate", "--asms", "smart", "--out", str(tmp_path / "e")), "unknown ASM"),
+        (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
+        (("plan", "--map", tmp_path / "none.h5", "--scenario", "1", "--asm", "lazy"), "does not exist"),
+        (("plan", "--map", small_map, "--scenario", "4", "--asm", "lazy"), "invalid choice"),
+        (("plan", "--map", small_map, "--scenario", "1", "--asm", "clever"), "invalid choice"),
+        (("evaluate", "--maps", tmp_path, "--out", tmp_path / "e"), "does not exist"),
+        (("evaluate", "--asms", "smart", "--out", tmp_path / "e"), "unknown ASM"),
     ):
-        r = run(*args)
-        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
+        cli(*args).one_line_error(message)
     maps = tmp_path / "maps"
     maps.mkdir()
     (maps / "case2.h5").write_bytes(small_map.read_bytes())
     ev = tmp_path / "eval"
     args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random,greedy", "--trials", "2",
-            "--max-actions", "2", "--candidates", "4", "--maps", str(maps), "--out", str(ev))  # fmt: skip
-    r = run(*args)
-    assert r.returncode == 0, r.stderr
+            "--max-actions", "2", "--candidates", "4", "--maps", maps, "--out", ev)  # fmt: skip
+    cli(*args).ok()
     records = json.loads((ev / "results.json").read_text())
     assert len(records) == 4
     assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s"}
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
-    r = run(*args)  # resumes: nothing left to do
+    r = cli(*args)  # resumes: nothing left to do
     assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
     # the same trials face the same layouts whatever the ASM
     assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
@@ -196,7 +176,8 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
 
 
 def test_scenarios_command_draws_without_opengl(tmp_path):
-    # CI has no display and no OSMesa: the diagrams must still come
+    # CI has no display and no OSMesa: the diagrams must still come (a process of its own,
+    # started without any OpenGL setting)
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")}
     r = subprocess.run([sys.executable, "-m", "lmjx.cli", "scenarios", "--out", str(tmp_path)], env=env,
                        capture_output=True, text=True, timeout=300)  # fmt: skip
@@ -206,8 +187,7 @@ def test_scenarios_command_draws_without_opengl(tmp_path):
         data = (tmp_path / f"scenario{n}.png").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
         assert f"scenario {n}:" in r.stdout
-    bad = subprocess.run([sys.executable, "-m", "lmjx.cli", "scenarios", "--out", "/proc/nope"], env=env,
-                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    bad = cli("scenarios", "--out", "/proc/nope")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
 
 
@@ -294,16 +274,10 @@ def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
     if warp_problem() is not None:
         name, why = resolve_simulator("auto")
         assert name == "cpu" and why == warp_problem()
-        r = subprocess.run(
-            [sys.executable, "-m", "lmjx.cli", "plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy",
-             "--sim", "gpu"], capture_output=True, text=True, env=ENV, timeout=300,
-        )  # fmt: skip
+        r = cli("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--sim", "gpu")
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--sim gpu" in r.stderr, r.stderr
-    r = subprocess.run(
-        [sys.executable, "-m", "lmjx.cli", "plan", "--map", str(small_map), "--scenario", "1", "--asm", "greedy",
-         "--candidates", "4", "--max-actions", "1", "--json"], capture_output=True, text=True, env=ENV, timeout=600,
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr
+    r = cli("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--candidates", "4", "--max-actions", "1",
+            "--json").ok()  # fmt: skip
     out = json.loads(r.stdout)
     assert out["simulator"] in ("cpu", "gpu") and out["simulator_reason"] and out["candidates"] == 4
     assert f"simulator {out['simulator']}" in r.stderr

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 
 import h5py
 import mujoco
 import numpy as np
 import pytest
+from conftest import cli
 
 from lmjx.atlas import AtlasConfig, entries, expected_maps
 from lmjx.errors import ConfigError, FailureSpecError, MapFileError
@@ -19,19 +18,13 @@ from lmjx.failure import parse_failure
 from lmjx.robot import ROBOTS, RobotError, check_robot, load_robot, resolve_robot
 from lmjx.scenarios import scenario
 
-ENV = {**__import__("os").environ, "JAX_PLATFORMS": "cpu"}
 UR5E = ROBOTS["ur5e"]
-
-
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "lmjx.cli", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, env=ENV, timeout=600)
 
 
 @pytest.mark.parametrize("name", sorted(ROBOTS))
 def test_shipped_robots_meet_the_contract(name):
     assert check_robot(ROBOTS[name]) == []
-    r = _cli("robot", "check", str(ROBOTS[name]))
+    r = cli("robot", "check", str(ROBOTS[name]))
     assert r.returncode == 0 and "an lmjx robot" in r.stdout, r.stderr
 
 
@@ -65,34 +58,34 @@ def test_robot_check_names_the_problem(case, tmp_path):
     path.write_text(broken)
     problems = check_robot(path)
     assert len(problems) == 1 and message in problems[0], problems
-    r = _cli("robot", "check", str(path))
+    r = cli("robot", "check", str(path))
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and message in lines[0] and str(path) in lines[0], r.stderr
     with pytest.raises(RobotError, match=re.escape(message)):
         load_robot(str(path))
     # every command refuses it the same way, in one line
-    r = _cli("reach", "--robot", str(path), "--failure", "none")
+    r = cli("reach", "--robot", str(path), "--failure", "none")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
 
 
 def test_robot_check_lists_every_problem_and_reads_no_junk(tmp_path):
     text = BROKEN["missing tcp"][0](BROKEN["no interaction points"][0](UR5E.read_text()))
     (tmp_path / "two.xml").write_text(text)
-    r = _cli("robot", "check", str(tmp_path / "two.xml"))
+    r = cli("robot", "check", str(tmp_path / "two.xml"))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 2, r.stderr
     (tmp_path / "junk.xml").write_text("<mujoco><worldbody><body>")
-    r = _cli("robot", "check", str(tmp_path / "junk.xml"))
+    r = cli("robot", "check", str(tmp_path / "junk.xml"))
     assert r.returncode == 2 and "MuJoCo cannot load it" in r.stderr and "Traceback" not in r.stderr
     for args, message in (
         (("robot", "check", str(tmp_path / "missing.xml")), "no robot description"),
         (("reach", "--robot", "kuka", "--failure", "none"), "unknown robot 'kuka'"),
     ):
-        r = _cli(*args)
+        r = cli(*args)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
 
 
 def test_robots_command_lists_the_shipped_arms():
-    r = _cli("robots", "--json")
+    r = cli("robots", "--json")
     assert r.returncode == 0, r.stderr
     rows = {x["name"]: x for x in json.loads(r.stdout)["robots"]}
     assert set(rows) == {"panda", "ur5e"}
@@ -179,13 +172,12 @@ def test_atlas_of_the_ur5e_has_675_maps():
     assert joints.max() == 6
 
 
-def test_map_files_name_their_robot(tmp_path):
+def test_map_files_name_their_robot(table1_ur5e, tmp_path):
     """A map records its robot; load_map takes the robot it names and refuses another."""
     from lmjx.mapfile import load_map, write_reach_map
-    from lmjx.reach import reach_config, reach_map
 
     ur = load_robot("ur5e")
-    res = reach_map("case2", reach_config(ur, cell=0.1, attempts=2, restarts=2, iterations=8), robot=ur)
+    res = table1_ur5e["case2"]
     path = tmp_path / "ur.h5"
     write_reach_map(path, res, ur)
     with h5py.File(path) as f:
@@ -194,9 +186,9 @@ def test_map_files_name_their_robot(tmp_path):
     assert m.robot is ur and m.failure.locked == parse_failure("case2", ur).locked
     with pytest.raises(MapFileError, match="built for the robot 'ur5e', not 'panda'"):
         load_map(path, load_robot("panda"))
-    r = _cli("info", str(path), "--json")
+    r = cli("info", str(path), "--json")
     assert r.returncode == 0 and json.loads(r.stdout)["robot"] == "ur5e", r.stderr
-    r = _cli("info", str(path), "--robot", "panda")
+    r = cli("info", str(path), "--robot", "panda")
     assert r.returncode == 2 and "not 'panda'" in r.stderr
     with h5py.File(path, "a") as f:  # a map of a user's robot needs its file
         f.attrs["robot"] = "my_arm"
