@@ -3,7 +3,7 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; planner, gputests, evalgpu and decision need
+# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026; planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
@@ -175,6 +175,20 @@ for step in $steps; do
       /usr/bin/time -f "UR5e atlas: %e s wall" timeout 300 python3 -m lmjx.cli --cache-dir off atlas --robot ur5e \
         --out "$WORK/atlas_ur5e.h5" --summary "$OUT/atlas_ur5e.md" --json > "$OUT/atlas_ur5e.json" 2> "$WORK/uratlas.err"
       tail -2 "$WORK/uratlas.err"; cat "$OUT/atlas_ur5e.json"; cp "$WORK/atlas_ur5e.h5" "$OUT/" ;;
+    maps2026)
+      # Issue 18: the out-of-sample agreement test's maps (100,000 edges, seed 2026: never used
+      # before; tests/test_simulate_gpu.py MAP_SEED).
+      mkdir -p "$WORK/maps2026"
+      for f in case1 case2; do
+        /usr/bin/time -f "build-map $f seed 2026: %e s wall" timeout 280 python3 -m lmjx.cli build-map --failure $f \
+          --seed 2026 --out "$WORK/maps2026/$f.h5" --json > "$OUT/build2026_$f.json" 2> "$WORK/build.err"
+        tail -1 "$WORK/build.err"
+      done ;;
+    agree2026)
+      # Issue 18: the GPU simulator's tests, the out-of-sample agreement among them (thresholds
+      # and seeds fixed in the test before this run).
+      LMJX_TEST_MAPS="$WORK/maps2026" LMJX_TEST_REPORT="$OUT/agreement2026.json" timeout 580 python3 -m pytest -q \
+        -p no:cacheprovider -rA tests/test_simulate_gpu.py 2>&1 | tail -25 ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;

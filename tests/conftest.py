@@ -7,7 +7,9 @@ fixtures (`coarse`, `table1`, `table1_ur5e`, `small_map`), and commands run in t
 (`cli`) unless what is tested needs a process of its own (`cli_process`: signals, several
 host devices or processes).  Compiled programs are kept in one cache folder for the whole
 run, subprocesses included (`LMJX_CACHE_DIR`: JAX's persistent compilation cache and the
-traced kernels), a folder of its own under the temp dir unless the variable is set.
+traced kernels), a folder of its own under the temp dir unless the variable is set.  From the
+start of the run a thread compiles the programs the tests will need (`_compile_ahead`), so
+that compiling uses the second core while a test's own work leaves it idle.
 """
 
 from __future__ import annotations
@@ -39,9 +41,12 @@ import pytest  # noqa: E402
 # The small case-2 map every planning and map-file test shares (tests/golden.py's arguments),
 # built in chunks of 1000 edges.
 SMALL_MAP = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1", "--chunk", "1000")
-# A four-joint arm whose kernels compile several times faster than the Panda's: the tests that
-# compile programs of their own (several host devices or processes) build its maps and atlases.
+# A four-joint arm whose kernels compile several times faster than the Panda's and whose maps
+# take a fraction of the work: the tests that build maps again and again (other chunkings,
+# kills and resumes, several host devices or processes) and the atlas tests build its.
 TINY_ARM = Path(__file__).parent / "data" / "tiny_arm.xml"
+TINY_MAP = ("--robot", TINY_ARM, "--failure", "J4=0.5", "--edges", "1200", "--cell", "0.05", "--seed", "3",
+            "--chunk", "400")  # fmt: skip
 
 
 def random_configs(robot, n: int, seed: int) -> np.ndarray:
@@ -225,9 +230,73 @@ def ik_batch(robot, failure, settings=None, chunk: int | None = None):
 
 
 @pytest.fixture(scope="session")
+def tiny_map(tmp_path_factory) -> Path:
+    """The four-joint test arm's map (TINY_MAP), built by `lmjx build-map` in this process."""
+    path = tmp_path_factory.mktemp("tiny_map") / "tiny.h5"
+    cli("build-map", *TINY_MAP, "--out", path).ok()
+    return path
+
+
+@pytest.fixture(scope="session")
 def small_map(tmp_path_factory) -> Path:
     """The shared case-2 map (SMALL_MAP), built by `lmjx build-map` in this process with
     its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
     path = tmp_path_factory.mktemp("small_map") / "case2.h5"
     cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
     return path
+
+
+def _programs_ahead() -> list[Callable[[], None]]:
+    """What `_compile_ahead` compiles, in about the order the tests first need it: the
+    programs (ChunkedKernel keys) the tests and the commands they run build themselves."""
+    from lmjx.actions import _clearance_kernel
+    from lmjx.bundle import BundleConfig, rollout_kernel
+    from lmjx.failure import parse_failure
+    from lmjx.reach import attempt_plan, reach_config
+    from lmjx.robot import load_robot
+
+    panda, ur, tiny = load_robot("panda"), load_robot("ur5e"), load_robot(str(TINY_ARM))
+    config = BundleConfig()
+
+    def ik(robot, spec):
+        return lambda: ik_batch(robot, parse_failure(spec, robot)).compile()
+
+    def rollout(robot, spec, with_tcp):
+        sites = attempt_plan(robot, reach_config(robot))[0]
+        return lambda: rollout_kernel(robot, parse_failure(spec, robot), config, config.kernel_chunk(),
+                                      valid_only=False, sites=sites if with_tcp else sites[1:]).compile()  # fmt: skip
+
+    return [
+        ik(tiny, "J4=0.5"),
+        rollout(tiny, "J4=0.5", False),
+        ik(panda, "case1"),
+        rollout(panda, "case1", True),
+        ik(panda, "case2"),
+        rollout(panda, "case2", False),
+        ik(panda, "none"),
+        rollout(panda, "none", True),
+        lambda: _clearance_kernel(panda).compile(),
+        ik(ur, "case1"),
+        ik(ur, "none"),
+        ik(ur, "case2"),
+    ]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _compile_ahead():
+    """Compile, in a thread of its own from the start of the run, the programs the tests
+    will need: a test then finds its program compiled, or waits for the compilation under
+    way (a program is compiled once, whoever asks first).  LMJX_TEST_AHEAD=0: not ahead."""
+    if os.environ.get("LMJX_TEST_AHEAD", "1") == "0":
+        yield
+        return
+
+    def run() -> None:
+        for compile_one in _programs_ahead():
+            with contextlib.suppress(Exception):  # the test that needs the program meets the error itself
+                compile_one()
+
+    thread = threading.Thread(target=run, name="lmjx-compile-ahead", daemon=True)
+    thread.start()
+    yield
+    thread.join()

@@ -31,13 +31,16 @@ def case2(robot, small_map):
 
 def _random_edges(robot, reach, n, seed, speed=(0.1, 0.8)):
     """Starts taken from the reach map's solutions (each with the point its cell was solved
-    for: the TCP, the hand, ...), random twists and lengths."""
+    for: the TCP, the hand, ...), random twists and lengths.  Where no start is a grasp (no
+    TCP), the sites are the edges' own interaction points, and the program the builds run."""
     rng = np.random.default_rng(seed)
     cells = np.argwhere(reach.labels > 0)
     pick = cells[rng.integers(0, len(cells), n)]
     free = list(reach.failure.free())
     q0 = np.array([reach.q[i, j][free] for i, j in pick], np.float32)
     sites = attempt_plan(robot, reach.config)[0]  # the map's sites: the TCP, then the points
+    if robot.tcp_site not in {reach.site[i, j] for i, j in pick}:
+        sites = sites[1:]
     which = np.array([sites.index(reach.site[i, j]) for i, j in pick], np.int32)
     d = rng.uniform(-1, 1, (n, 6))
     twist = (d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(*speed, (n, 1))).astype(np.float32)
