@@ -106,13 +106,16 @@ FIRST_SEED = 500
 
 def _same_results(a: np.ndarray, b: np.ndarray) -> None:
     """Two runs of the same candidates agree: exactly enough on Warp's CPU device; on a GPU
-    up to its run-to-run rounding (contacts are collected with atomics, so their order, and
-    the last bits of a solve, vary between launches; contact chains can amplify that)."""
+    up to its run-to-run spread (contacts are collected with atomics, so their order, and
+    the last bits of a solve, vary between launches): nearly every coordinate the same, and
+    a candidate whose outcome turns on a contact chain within 2 cm (measured on an H100,
+    2026-11-23: six default runs of the same two candidates ended up to 1.05 cm apart, the
+    runs split between two outcomes; benchmarks/RESULTS.md, issue 18)."""
     if not CUDA:
         np.testing.assert_allclose(a, b, atol=1e-6)
         return
     d = np.abs(a[..., :3] - b[..., :3])
-    assert np.median(d) < 1e-6 and d.max() < 2e-3, (np.median(d), d.max())
+    assert np.median(d) < 1e-6 and d.max() < 2e-2, (np.median(d), d.max())
 
 
 def _sim_config(**kw):
