@@ -283,11 +283,15 @@ def _programs_ahead() -> list[Callable[[], None]]:
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _compile_ahead():
+def _compile_ahead(request: pytest.FixtureRequest):
     """Compile, in a thread of its own from the start of the run, the programs the tests
     will need: a test then finds its program compiled, or waits for the compilation under
-    way (a program is compiled once, whoever asks first).  LMJX_TEST_AHEAD=0: not ahead."""
-    if os.environ.get("LMJX_TEST_AHEAD", "1") == "0":
+    way (a program is compiled once, whoever asks first).  Only for a run of several test
+    files (a run of one test compiles only what it needs); LMJX_TEST_AHEAD=1 forces it,
+    LMJX_TEST_AHEAD=0 turns it off."""
+    modules = {item.module.__name__ for item in request.session.items if hasattr(item, "module")}
+    ahead = os.environ.get("LMJX_TEST_AHEAD", "")
+    if ahead == "0" or (ahead != "1" and len(modules) < 4):
         yield
         return
 
