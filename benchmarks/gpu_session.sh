@@ -156,6 +156,21 @@ for step in $steps; do
     shardscale)
       # Issue 10: the rollout program alone on 1 and on every GPU, and the device-to-host copy rate.
       timeout 300 python3 benchmarks/shard_scaling.py --edges 2000000 --out "$OUT/scaling.json" 2>&1 | tail -3 ;;
+    issue19)
+      # Issue 19 on the GPU: the scene-clearance kernels against C MuJoCo (tests on the GPU
+      # backend), a 100,000-edge case-2 map, one Greedy trial per scenario with 1,024
+      # candidates (planning time per decision, the actions' records), the GPU simulator's tests.
+      JAX_PLATFORMS=cuda timeout 300 python3 -m pytest -q -x -p no:cacheprovider tests/test_collision.py -k scene \
+        2>&1 | tail -3
+      [ -f "$WORK/maps/case2.h5" ] || /usr/bin/time -f "build-map case2 100k: %e s wall" timeout 300 python3 -m \
+        lmjx.cli build-map --failure case2 --out "$WORK/maps/case2.h5" --json > "$OUT/build_case2.json" \
+        2> "$WORK/build.err"; tail -2 "$WORK/build.err"
+      for sc in 1 2 3; do
+        timeout 300 python3 -m lmjx.cli plan --map "$WORK/maps/case2.h5" --scenario $sc --asm greedy --seed 900 \
+          --max-actions 5 --json > "$OUT/plan19_s$sc.json" 2> "$WORK/plan.err"; tail -2 "$WORK/plan.err"
+        python3 -c "import json; d = json.load(open('$OUT/plan19_s$sc.json')); print({k: d[k] for k in ('simulator', 'candidates', 'success', 'actions', 'planning_s', 'end')}, [(s['candidates'], s['simulated'], s['planning_s'], s['target_moved_m'], s['transit_hit_fixed']) for s in d['steps']])"
+      done
+      timeout 300 python3 -m pytest -q -x -p no:cacheprovider tests/test_simulate_gpu.py -k "not decides" 2>&1 | tail -3 ;;
     decision)
       # Issue 10: one Greedy decision (GPU simulator, 1,024 candidates) on the 100k and the 5M map.
       [ -f "$WORK/maps/case2.h5" ] || timeout 300 python3 -m lmjx.cli build-map --failure case2 \

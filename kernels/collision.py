@@ -179,3 +179,43 @@ def arm_clearance(arm: ArmModel, q: jnp.ndarray, unroll: bool = True) -> ArmClea
     )
     selfc = jnp.min(self_clearance(arm, a_w, b_w)) if len(arm.self_pairs) else jnp.asarray(jnp.inf, q.dtype)
     return ArmClearance(selfc, table)
+
+
+class BoxClearance(NamedTuple):
+    """Clearance of one configuration to each box of a scene (the arm's capsules' smallest)."""
+
+    box_clearance: jnp.ndarray  # (nb,) [m]
+
+
+def boxes_clearance(
+    arm: ArmModel, q: jnp.ndarray, centers: jnp.ndarray, rots: jnp.ndarray, halves: jnp.ndarray, unroll: bool = True
+) -> BoxClearance:
+    """Signed distance from the arm at joint angles q (nj,) to each of nb boxes (centres
+    (nb, 3), world-from-box rotations (nb, 3, 3), half sizes (nb, 3); all traced, so one
+    program serves any scene of nb boxes): the smallest over the arm's capsules.  A padding
+    box far away (or of zero size) is harmless."""
+    poses = body_poses(arm.tree, [q[j] for j in range(q.shape[0])])
+    caps = list(range(len(arm.cap_r)))
+    a_w, b_w = capsule_endpoints(arm, poses, caps, q[0])
+    a2 = tuple(x[:, None] for x in a_w)  # (nc, 1): capsules down, boxes across
+    b2 = tuple(x[:, None] for x in b_w)
+    center = tuple(centers[None, :, k] for k in range(3))
+    rot = tuple(tuple(rots[None, :, r, c] for c in range(3)) for r in range(3))
+    half = [halves[None, :, k] for k in range(3)]
+    radius = np.asarray(arm.cap_r, np.float32)[:, None]
+    d = capsule_box_clearance(a2, b2, radius, center, rot, half, unroll=unroll)  # type: ignore[arg-type]
+    return BoxClearance(jnp.min(d, axis=0))
+
+
+class CapsuleEnds(NamedTuple):
+    """World endpoints of every capsule of the arm at one configuration."""
+
+    a: jnp.ndarray  # (nc, 3)
+    b: jnp.ndarray  # (nc, 3)
+
+
+def capsule_ends(arm: ArmModel, q: jnp.ndarray) -> CapsuleEnds:
+    """The capsules' world endpoints at joint angles q (nj,)."""
+    poses = body_poses(arm.tree, [q[j] for j in range(q.shape[0])])
+    a_w, b_w = capsule_endpoints(arm, poses, list(range(len(arm.cap_r))), q[0])
+    return CapsuleEnds(jnp.stack(a_w, axis=-1), jnp.stack(b_w, axis=-1))

@@ -4,8 +4,18 @@ applies at its physics rate.
 
 The transit is a straight line in joint space, timed so that no joint exceeds half its
 velocity limit; when that line would take the arm into the table or into itself (checked
-with C MuJoCo at every control step), it goes through the failure's park pose instead; when
-that too collides, the action is not possible from here.  Nothing here chooses actions.
+with C MuJoCo at every control step, or by lmjx's clearance kernel), or within
+`OBJECT_MARGIN` of a movable object or `FIXED_MARGIN` of a fixed obstacle (the planner's
+whole scene at its observed poses, `set_scene`; lmjx's box-clearance kernel, batched over
+every configuration of every candidate), it retreats first: up to the failure's park pose
+(the arm raised clear of the table), then straight down to the edge's start.  When that
+too is blocked, the action is not offered.  An edge whose start lies within the margins of
+an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is not offered either; nor, once a scene
+is set, an edge whose arm never comes within `TARGET_CONTACT` of the target (the spatial
+index's cells are a coarse first cut; this is the exact test, capsules against the target's
+box at every state of the edge).  A transit may
+leave a contact the arm is already in (the last edge ended against an object), never enter
+one.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
@@ -20,6 +30,64 @@ from .failure import Failure
 from .robot import Robot
 
 CONTROL_DT = 0.02  # the edges' control period [s]
+OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
+FIXED_MARGIN = 0.02  # ... and this far from every fixed obstacle [m]
+TARGET_CONTACT = 0.005  # an edge acts on the target when the arm comes this close to it [m]
+MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
+MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
+EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
+
+
+@dataclass
+class SceneBoxes:
+    """The planner's scene as boxes: the movable objects at their observed poses and the
+    fixed obstacles (the table and the arm itself are checked apart)."""
+
+    names: tuple[str, ...]
+    movable: np.ndarray  # (nb,) bool
+    centers: np.ndarray  # (nb, 3)
+    rots: np.ndarray  # (nb, 3, 3) world from box
+    halves: np.ndarray  # (nb, 3)
+
+    def margins(self) -> np.ndarray:
+        return np.where(self.movable, OBJECT_MARGIN, FIXED_MARGIN)
+
+    def padded(self, n: int = MAX_BOXES, which: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(centres, rotations, half sizes) of `n` boxes, float32: the scene's (or those
+        `which` lists), then boxes of no size far below the table."""
+        which = np.arange(len(self.names)) if which is None else np.asarray(which)
+        nb = len(which)
+        if nb > n:
+            raise ValueError(f"a scene of {nb} boxes: the clearance program holds {n}")
+        c = np.zeros((n, 3), np.float32)
+        c[nb:, 2] = -100.0
+        r = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
+        h = np.zeros((n, 3), np.float32)
+        c[:nb], r[:nb], h[:nb] = self.centers[which], self.rots[which], self.halves[which]
+        return c, r, h
+
+
+def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
+    """The boxes of scenario `sc` with its movable objects at poses `objects` (n, 7)."""
+    boxes, centers, rots = [], [], []
+    for b, pose in zip(sc.movable, objects, strict=True):
+        m = np.zeros(9)
+        mujoco.mju_quat2Mat(m, np.asarray(pose[3:], np.float64))
+        boxes.append((b, True))
+        centers.append(pose[:3])
+        rots.append(m.reshape(3, 3))
+    for b in sc.fixed:
+        c, s_ = np.cos(b.yaw), np.sin(b.yaw)
+        boxes.append((b, False))
+        centers.append((b.x, b.y, b.zc))
+        rots.append(np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]))
+    return SceneBoxes(
+        names=tuple(b.name for b, _ in boxes),
+        movable=np.array([m for _, m in boxes], bool),
+        centers=np.asarray(centers, np.float64).reshape(-1, 3),
+        rots=np.asarray(rots, np.float64).reshape(-1, 3, 3),
+        halves=np.asarray([b.half for b, _ in boxes], np.float64).reshape(-1, 3),
+    )
 
 
 @dataclass
@@ -57,7 +125,28 @@ class TransitPlanner:
         self.park = park_pose(robot, failure)
         self.batched = batched
         self._kernel = None
+        self._box_kernel = None
+        self._edge_kernel = None
+        from .batching import backend
+
+        self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
+        self._scene_version = 0
+        self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
+        self.scene: SceneBoxes | None = None
+        # offer only edges that bring the arm into contact range of the target (set_scene)
+        self.acting = False
         self._from_park: dict[tuple[int, int], np.ndarray | None] = {}  # (bundle id, edge) -> park -> start
+
+    def set_scene(self, sc, objects: np.ndarray, acting: bool = True) -> None:
+        """The scene transits must keep clear of from now on: scenario `sc` with its movable
+        objects observed at `objects` (n, 7), the target first.  `acting`: offer only edges
+        that come within TARGET_CONTACT of the target."""
+        self.scene = scene_boxes(sc, objects)
+        self._scene_version += 1
+        self.acting = acting
+        self._from_park.clear()  # park -> start depends on where the objects are
+        if self._box_kernel is not None:
+            self._box_kernel.set_shared(*self.scene.padded())
 
     def colliding(self, q: np.ndarray) -> bool:
         self.d.qpos[:] = q
@@ -74,6 +163,51 @@ class TransitPlanner:
         out = self._kernel.run(np.asarray(qs, np.float32))
         return (out["self_clearance"] < 0) | (out["table_clearance"] < 0)
 
+    def box_clearance(self, qs: np.ndarray) -> np.ndarray:
+        """(n, nb) the arm's clearance at each configuration of qs (n, nj) to each box of the
+        scene (lmjx's box-clearance kernel, on the accelerator JAX uses)."""
+        assert self.scene is not None, "set_scene first"
+        if self._box_kernel is None:
+            self._box_kernel = _box_kernel(self.robot, self.scene.padded())
+        out = self._box_kernel.run(np.asarray(qs, np.float32))["box_clearance"]
+        return out[:, : len(self.scene.names)]
+
+    def lower_bounds(self, qs: np.ndarray) -> np.ndarray:
+        """(n, nb) a lower bound of the arm's clearance to each box of the scene: each capsule
+        axis's distance to the box's centre less the capsule's radius and the box's
+        circumradius (the capsules from lmjx's capsule kernel, a pass far cheaper than the
+        exact clearance, which only the configurations this leaves in doubt need)."""
+        from .bundle import _ends_kernel
+
+        assert self.scene is not None
+        ends = _ends_kernel(self.robot).run(np.asarray(qs, np.float32))
+        a, b = ends["a"].astype(np.float64), ends["b"].astype(np.float64)  # (n, nc, 3)
+        c = self.scene.centers  # (nb, 3)
+        d = b - a
+        ap = c[None, None] - a[:, :, None]  # (n, nc, nb, 3)
+        t = np.clip(np.einsum("ncbk,nck->ncb", ap, d) / np.maximum(np.einsum("nck,nck->nc", d, d), 1e-12)[..., None],
+                    0.0, 1.0)  # fmt: skip
+        gap = np.linalg.norm(ap - t[..., None] * d[:, :, None], axis=-1)  # (n, nc, nb)
+        radius = np.asarray(self.robot.arm.cap_r)[None, :, None]
+        return (gap - radius).min(axis=1) - np.linalg.norm(self.scene.halves, axis=1)[None]
+
+    def scene_blocked(self, qs: np.ndarray) -> np.ndarray:
+        """(n,) whether each configuration comes within the margins of an object or a fixed
+        obstacle of the scene (all False without a scene): the exact clearance wherever the
+        lower bound does not settle it."""
+        if self.scene is None or not len(self.scene.names) or not len(qs):
+            return np.zeros(len(qs), bool)
+        margins = self.scene.margins()
+        doubt = np.any(self.lower_bounds(qs) < margins, axis=1) if self._host_bounds else np.ones(len(qs), bool)
+        out = np.zeros(len(qs), bool)
+        if doubt.any():
+            out[doubt] = np.any(self.box_clearance(np.asarray(qs)[doubt]) < margins, axis=1)
+        return out
+
+    def blocked(self, qs: np.ndarray) -> np.ndarray:
+        """(n,) table, arm or scene in the way at each configuration."""
+        return self.colliding_batch(qs) | self.scene_blocked(qs)
+
     def _timing(self, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Control steps (n,) of straight transits dq (n, nj), and collision checks along them:
         at least one per control step and one per 0.02 rad of the largest joint motion."""
@@ -84,15 +218,15 @@ class TransitPlanner:
         return n, fine
 
     def segment(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray | None:
-        """Joint targets (T, nq) from q0 (exclusive) to q1 (inclusive), or None if they collide."""
+        """Joint targets (T, nq) from q0 (exclusive) to q1 (inclusive), or None if blocked."""
         return self.segments(q0[None], q1[None])[0]
 
     def segments(self, q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray | None]:
         """`segment` for many pairs (n, nj): all their configurations checked in one batch.
-        A start already in contact (the real arm pressed against the table) may move out of
-        it, but not back in."""
-        if not self.batched:
-            return [self._segment_one(a, b) for a, b in zip(q0, q1, strict=True)]
+        A start already in contact (the real arm pressed against the table or an object) may
+        move out of it, but not back in; the end must be free."""
+        if not len(q0):
+            return []
         dq = q1 - q0
         n, fine = self._timing(dq)
         owner = np.repeat(np.arange(len(q0)), fine)
@@ -100,7 +234,7 @@ class TransitPlanner:
         k = np.arange(len(owner)) - first[owner] + 1
         s = k / fine[owner]
         points = q0[owner] + s[:, None] * dq[owner]
-        hits = self.colliding_batch(np.concatenate([q0, points]))
+        hits = self.blocked(np.concatenate([q0, points]))
         start_hit, hits = hits[: len(q0)], hits[len(q0) :]
         # a check fails when it hits after any free check (the start's included)
         out: list[np.ndarray | None] = []
@@ -108,23 +242,50 @@ class TransitPlanner:
             h = hits[first[i] : first[i] + fine[i]]
             free = ~np.concatenate([[start_hit[i]], h[:-1]])
             free_before = np.logical_or.accumulate(free)
-            if np.any(h & free_before):
+            if h[-1] or np.any(h & free_before):
                 out.append(None)
             else:
                 out.append(q0[i] + np.outer(np.arange(1, n[i] + 1) / n[i], dq[i]))
         return out
 
-    def _segment_one(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray | None:
-        """`segment` checked with C MuJoCo, stopping at the first collision."""
-        dq = q1 - q0
-        n, fine = (int(x[0]) for x in self._timing(dq[None]))
-        leaving = self.colliding(q0)
-        for s in np.arange(1, fine + 1) / fine:
-            hit = self.colliding(q0 + s * dq)
-            if hit and not leaving:
-                return None
-            leaving = leaving and hit
-        return q0 + np.outer(np.arange(1, n + 1) / n, dq)
+    def edges_usable(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
+        """(len(edges),) whether each edge, from its start on, keeps FIXED_MARGIN from the
+        scene's fixed obstacles at every state (the real arm lags its targets: it may end an
+        edge nearer than planned, and its next transit starts there) and, with `acting`,
+        brings the arm within TARGET_CONTACT of the target (the scene's first box) at some
+        state (all True without a scene)."""
+        if self.scene is None or not len(edges):
+            return np.ones(len(edges), bool)
+        fixed = ~self.scene.movable
+        if not (self.acting or fixed.any()):
+            return np.ones(len(edges), bool)
+        qs = [bundle.edge(int(e), ("q",))["q"] for e in edges]
+        q_all = np.concatenate(qs).astype(np.float32)
+        # the target and the fixed obstacles only (a program of EDGE_BOXES boxes), exactly
+        # where the lower bound leaves it in doubt (near the target, near a fixed obstacle)
+        keep = np.concatenate([[0], np.nonzero(fixed)[0]])
+        # (an accelerator computes the exact clearance of everything faster than the host its bound)
+        c = self.lower_bounds(q_all) if self._host_bounds else np.full((len(q_all), len(fixed)), -np.inf)
+        doubt = (c[:, 0] <= TARGET_CONTACT) | np.any(c[:, fixed] < FIXED_MARGIN, axis=1)
+        if doubt.any():
+            if self._edge_kernel is None:
+                self._edge_kernel = _box_kernel(self.robot, self.scene.padded(EDGE_BOXES, keep))
+            else:
+                self._edge_kernel.set_shared(*self.scene.padded(EDGE_BOXES, keep))
+            exact = self._edge_kernel.run(q_all[doubt])["box_clearance"][:, : len(keep)]
+            rows = np.nonzero(doubt)[0]
+            c[np.ix_(rows, keep)] = exact
+        owner = np.repeat(np.arange(len(qs)), [len(q) for q in qs])
+        ok = np.ones(len(edges), bool)
+        if fixed.any():
+            worst = np.full(len(qs), np.inf)
+            np.minimum.at(worst, owner, c[:, fixed].min(axis=1))
+            ok &= worst >= FIXED_MARGIN
+        if self.acting:
+            nearest = np.full(len(qs), np.inf)
+            np.minimum.at(nearest, owner, c[:, 0])
+            ok &= nearest <= TARGET_CONTACT
+        return ok
 
     def action(self, bundle: Bundle, edge: int, q_now: np.ndarray) -> Action | None:
         acts = self.actions(bundle, np.array([edge]), q_now, 1)
@@ -132,33 +293,39 @@ class TransitPlanner:
 
     def actions(self, bundle: Bundle, edges: np.ndarray, q_now: np.ndarray, want: int) -> list[Action]:
         """The first `want` feasible actions among `edges`, in their order (fewer if there are
-        not that many)."""
+        not that many).  Edges are taken in blocks (whatever the block, the same first
+        actions): the edges' own tests first (one batch of their states), then the transits
+        of those that pass."""
         out: list[Action] = []
-        block = want if self.batched else 1
+        block = max(want, MIN_BLOCK)
         i = 0
         while len(out) < want and i < len(edges):
             part = np.asarray(edges[i : i + block])
             i += len(part)
+            part = part[self.edges_usable(bundle, part)]
+            if not len(part):
+                continue
             starts = bundle.q_start[part].astype(np.float64)
             direct = self.segments(np.repeat(q_now[None], len(part), axis=0), starts)
             via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
             ok = [j for j in range(len(part)) if direct[j] is not None or j in via]
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
-            for j, e in enumerate(part):
-                transit = direct[j] if direct[j] is not None else via.get(j)
-                if transit is None:
-                    continue
-                out.append(_action(bundle, int(e), q_now, transit, direct[j] is None))
+            for j in ok:
+                transit = direct[j] if direct[j] is not None else via[j]
+                out.append(_action(bundle, int(part[j]), q_now, transit, direct[j] is None))
                 if len(out) == want:
                     break
-            block = max(1, 2 * (want - len(out))) if self.batched else 1
+            block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
 
     def _via_park(self, bundle: Bundle, part: np.ndarray, q_now: np.ndarray, idx: list[int]) -> dict[int, np.ndarray]:
         """Transits through the park pose for part[idx]: q_now -> park, then park -> start."""
         if not idx:
             return {}
-        first = self.segment(q_now, self.park)
+        key_now = (q_now.tobytes(), self._scene_version)
+        if self._to_park[0] != key_now:
+            self._to_park = (key_now, self.segment(q_now, self.park))
+        first = self._to_park[1]
         if first is None:
             return {}
         key = id(bundle)
@@ -201,6 +368,24 @@ def _clearance_kernel(robot: Robot):
         return arm_clearance(robot.arm, q, unroll)
 
     return ChunkedKernel(("arm_clearance", robot.model_hash, unroll), one, [], [(np.float32, (robot.nq,))], chunk)
+
+
+def _box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
+    """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared
+    (inputs: one program for every scene of up to MAX_BOXES boxes)."""
+    from .batching import ChunkedKernel, backend
+    from .kernels.collision import boxes_clearance
+
+    unroll = backend() != "cpu"
+    chunk = 1 << 14 if backend() != "cpu" else 256  # CPU: calls hold a few hundred configurations
+
+    def one(centers, rots, halves, q):
+        return boxes_clearance(robot.arm, q, centers, rots, halves, unroll)
+
+    return ChunkedKernel(
+        ("boxes_clearance", robot.model_hash, unroll, len(boxes[0])), one, list(boxes), [(np.float32, (robot.nq,))],
+        chunk,
+    )
 
 
 def park_pose(robot: Robot, failure: Failure, samples: int = 3000) -> np.ndarray:

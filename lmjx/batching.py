@@ -160,14 +160,7 @@ class ChunkedKernel:
         self.key = (*key, chunk, tuple((np.dtype(d).str, s) for d, s in inputs), len(shared), sharded, outputs)
         self.placed = (*self.key, device.id if device is not None else None)  # what _COMPILED holds
         self.one = one
-        if self.mesh is not None:
-            from .sharding import put_replicated
-
-            self.shared = [put_replicated(np.asarray(a), self.mesh) for a in shared]
-        elif device is not None:
-            self.shared = [jax.device_put(np.asarray(a), device) for a in shared]
-        else:
-            self.shared = [jnp.asarray(np.asarray(a)) for a in shared]
+        self.shared = self._placed(shared)
         self.inputs = list(inputs)
         self.chunk = chunk
         self.compile_seconds = 0.0
@@ -296,6 +289,23 @@ class ChunkedKernel:
             out[k].append(h[: min(block, counts[d] - b * block)])
             self.copied_bytes += a.nbytes
         return out
+
+    def _placed(self, shared: Sequence[np.ndarray]) -> list:
+        if self.mesh is not None:
+            from .sharding import put_replicated
+
+            return [put_replicated(np.asarray(a), self.mesh) for a in shared]
+        if self.device is not None:
+            return [jax.device_put(np.asarray(a), self.device) for a in shared]
+        return [jnp.asarray(np.asarray(a)) for a in shared]
+
+    def set_shared(self, *shared: np.ndarray) -> None:
+        """New values for the shared arrays (the same shapes and dtypes: the same program)."""
+        old = [(a.shape, a.dtype) for a in self.shared]
+        new = [(np.shape(a), np.asarray(a).dtype) for a in shared]
+        if old != new:
+            raise ValueError(f"shared arrays {new} do not match the program's {old}")
+        self.shared = self._placed(shared)
 
     def run(
         self,

@@ -20,6 +20,7 @@ gives the same edges, for any chunk size and any number of devices.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -540,8 +541,7 @@ def pack_chunk(
     q[:, free] = rows_of(out["q"])
     qd[:, free] = rows_of(out["qd"])
     p = rows_of(out["p"]).astype(np.float32)
-    radius = robot.arm.site_radius[list(samples.sites)][samples.which[keep]]
-    index_cell, index_edge = index_pairs(reach, p, lens, radius, config.index_height, config.index_substeps)
+    index_cell, index_edge = arm_index_pairs(reach, robot, q, lens, config.index_height)
     evaluated = int(np.sum(np.where(out["valid"], samples.length[idx], out["fail_step"]) + 1))
     return EdgeChunk(
         start=samples.start,
@@ -566,68 +566,94 @@ def pack_chunk(
     )
 
 
-# How far above `index_height` a segment's end may be for the segment to be sampled: far more
-# than float32 rounding can move an inner point below its ends (no point found is lost).
-LOW_SLACK = 1e-3
+# States whose capsules are computed at a time when indexing (bounds the host memory a
+# chunk's index needs: about 100 MB for the Panda).
+INDEX_STATES = 1 << 16
+_ENDS: dict[str, Any] = {}
+_ENDS_LOCK = threading.Lock()
 
 
-def index_pairs(
-    reach: ReachResult,
-    p: np.ndarray,
-    length: np.ndarray,
-    edge_radius: np.ndarray,
-    height: float,
-    substeps: int,
+def _ends_kernel(robot: Robot):
+    """jit(vmap(capsule_ends)) for `robot`, one per process (shared by the packing threads)."""
+    from .kernels.collision import capsule_ends
+
+    with _ENDS_LOCK:
+        if robot.model_hash not in _ENDS:
+            chunk = 1 << 15 if backend() != "cpu" else 1024
+
+            def one(q):
+                return capsule_ends(robot.arm, q)
+
+            _ENDS[robot.model_hash] = ChunkedKernel(
+                ("capsule_ends", robot.model_hash), one, [], [(np.float32, (robot.nq,))], chunk
+            )
+        return _ENDS[robot.model_hash]
+
+
+def arm_index_pairs(
+    reach: ReachResult, robot: Robot, q: np.ndarray, length: np.ndarray, height: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cell, edge) pairs, unique and sorted by cell then edge: the edges (numbered as
-    `length` lists them) whose point passes over a reach cell with the link's lowest surface
-    at most `height` above the table.  Each step segment is sampled at `substeps` points, so
-    a point moving up to a cell per step is not missed (in effect: segments with both ends
-    well above `height` hold no low point and are skipped)."""
+    `length` lists them; `q` holds their states, flat) during which any of the arm's
+    table-checked capsules, swept over the edge's states, comes within its radius of a reach
+    cell's square with its lowest surface at most `height` above the table: the whole arm
+    can touch an object of that height there (the paper's edges that "intersect the
+    object").  Each capsule's low part (the stretch of its axis whose surface below is under
+    `height`) is sampled every half cell; a cell counts when a sample lies within the
+    capsule's radius of its square."""
     ny, nx = reach.labels.shape
     cell = reach.config.cell
     x0 = reach.xs[0] - cell / 2
     y0 = reach.ys[0] - cell / 2
-    edge_of_row = np.repeat(np.arange(len(length), dtype=np.int64), length)
-    n = len(p)
-    if n == 0:
+    arm = robot.arm
+    caps = np.asarray(arm.table_caps)
+    if len(q) == 0 or len(caps) == 0:
         return np.zeros(0, np.int32), np.zeros(0, np.int32)
-    last = np.zeros(n, bool)
-    last[np.cumsum(length) - 1] = True
-    # A segment's inner points lie between its ends' heights, so only segments with a low end
-    # (allowing for rounding) can hold low points: the others are dropped before sampling.
-    near = p[:, 2] - edge_radius[edge_of_row] <= height + LOW_SLACK
-    a = np.nonzero(~last[:-1] & (near[:-1] | near[1:]))[0]
-    # Each kept segment's points (its start state, then its inner points), then every edge's
-    # last state; only the low ones are kept.
-    seg = np.empty((len(a), substeps, 3), p.dtype)
-    pa, pb = p[a], p[a + 1]
-    seg[:, 0] = pa
-    for s in range(1, substeps):
-        t = s / substeps
-        seg[:, s] = pa * (1 - t) + pb * t
-    del pa, pb
-    ends = np.nonzero(last & near)[0]
-    pts = np.concatenate([seg.reshape(-1, 3), p[ends]])
-    own = np.concatenate([np.repeat(edge_of_row[a], substeps), edge_of_row[ends]])
-    del seg
-    low = np.nonzero(pts[:, 2] - edge_radius[own] <= height)[0]
-    pts, own = pts[low], own[low]
-    ix = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
-    iy = np.floor((pts[:, 1] - y0) / cell).astype(np.int64)
-    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    r_cap = np.asarray(arm.cap_r, np.float64)[caps]
+    edge_of_row = np.repeat(np.arange(len(length), dtype=np.int64), length)
     width = max(1, len(length))
-    keys = (iy[inside] * nx + ix[inside]) * width + own[inside]
-    # a trajectory stays over a cell for several points: dropping repeats in a row first
-    # leaves a short sort (numpy's hash-based unique is much slower here)
-    keys = np.sort(_drop_repeats(keys))
-    keys = _drop_repeats(keys)
-    return (keys // width).astype(np.int32), (keys % width).astype(np.int32)
-
-
-def _drop_repeats(x: np.ndarray) -> np.ndarray:
-    """`x` without the elements equal to the one before them."""
-    return x[np.concatenate([[True], x[1:] != x[:-1]])] if len(x) else x
+    kernel = _ends_kernel(robot)
+    keys: list[np.ndarray] = []
+    for s0 in range(0, len(q), INDEX_STATES):
+        ends = kernel.run(np.asarray(q[s0 : s0 + INDEX_STATES], np.float32))
+        a = ends["a"][:, caps].astype(np.float64)  # (m, nc, 3)
+        b = ends["b"][:, caps].astype(np.float64)
+        za = a[..., 2] - arm.table_z - r_cap
+        zb = b[..., 2] - arm.table_z - r_cap
+        row, cap = np.nonzero(np.minimum(za, zb) <= height)
+        if not len(row):
+            continue
+        a, b, za, zb = a[row, cap], b[row, cap], za[row, cap], zb[row, cap]
+        # the low stretch [t0, t1] of each axis (z falls linearly along it)
+        dz = zb - za
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_h = np.where(np.abs(dz) > 1e-12, (height - za) / dz, 0.0)
+        t0 = np.where(za <= height, 0.0, np.clip(t_h, 0.0, 1.0))
+        t1 = np.where(zb <= height, 1.0, np.clip(t_h, 0.0, 1.0))
+        pa = a[:, :2] + t0[:, None] * (b[:, :2] - a[:, :2])
+        pb = a[:, :2] + t1[:, None] * (b[:, :2] - a[:, :2])
+        k = np.ceil(np.hypot(*(pb - pa).T) / (cell / 2)).astype(np.int64) + 1  # samples per stretch
+        owner = np.repeat(np.arange(len(k)), k)
+        first = np.concatenate([[0], np.cumsum(k)[:-1]])
+        frac = (np.arange(len(owner)) - first[owner]) / np.maximum(k[owner] - 1, 1)
+        pts = pa[owner] + frac[:, None] * (pb[owner] - pa[owner])
+        rad = r_cap[cap[owner]]
+        edge = edge_of_row[s0 + row[owner]]
+        # every cell whose square lies within the radius of a sample
+        reach_cells = int(np.ceil(rad.max() / cell))
+        ix = np.floor((pts[:, 0] - x0) / cell).astype(np.int64)
+        iy = np.floor((pts[:, 1] - y0) / cell).astype(np.int64)
+        for dy in range(-reach_cells, reach_cells + 1):
+            for dx in range(-reach_cells, reach_cells + 1):
+                cx, cy = ix + dx, iy + dy
+                gx = np.maximum(np.abs(pts[:, 0] - (x0 + (cx + 0.5) * cell)) - cell / 2, 0.0)
+                gy = np.maximum(np.abs(pts[:, 1] - (y0 + (cy + 0.5) * cell)) - cell / 2, 0.0)
+                hit = (gx * gx + gy * gy <= rad * rad) & (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny)
+                keys.append(np.unique((cy[hit] * nx + cx[hit]) * width + edge[hit]))
+    if not keys:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    flat = np.unique(np.concatenate(keys))
+    return (flat // width).astype(np.int32), (flat % width).astype(np.int32)
 
 
 def csr(cells: np.ndarray, edges: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:

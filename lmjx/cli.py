@@ -88,6 +88,15 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         type=_positive_int,
         help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
     )
+    p.add_argument(
+        "--asm-settings",
+        choices=("lmjx", "paper"),
+        default="lmjx",
+        help="lmjx (default): with lmjx's refinements (edges that failed are not offered again while the "
+        "target stays put, the path length around obstacles as the score, Lazy capped at 32 tries and "
+        "taking its best when none helps); paper: the ASMs as the paper states them (none of these; Greedy "
+        "simulates a quarter of the edges over the target)",
+    )
     _add_sim(p)
 
 
@@ -662,9 +671,10 @@ def _planner_config(args: argparse.Namespace, asm: str, sim: str):
     from .planner import PlannerConfig
     from .trial import DEFAULT_CANDIDATES
 
-    return PlannerConfig(
+    config = PlannerConfig(
         asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or DEFAULT_CANDIDATES[sim]
     )
+    return config.paper() if args.asm_settings == "paper" else config
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -708,17 +718,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         "simulator_reason": why,
         "simulator_description": sim.description if sim is not None else None,
         "candidates": config.greedy_candidates if args.asm == "greedy" else None,
+        "asm_settings": config.settings(),
         **res.summary(),
-        "steps": [
-            {
-                "edge": s.edge,
-                "candidates": s.candidates,
-                "simulated": s.simulated,
-                "distance_after_m": round(s.distance_after, 4),
-                "planning_s": round(s.planning_s, 3),
-            }
-            for s in res.steps
-        ],
+        "steps": [s.summary() for s in res.steps],
     }
     lines = [
         f"failure {m.failure.spec}, scenario {args.scenario}, {args.asm}, seed {args.seed}: "

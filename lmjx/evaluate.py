@@ -139,6 +139,8 @@ def evaluate(
                     "end": res.reason,
                     "sim": config.backend if a != "random" else "none",
                     "candidates": config.planner.greedy_candidates if a == "greedy" else None,
+                    "asm_settings": config.planner.settings(),
+                    "steps": res.action_records(),
                 }
             )
             records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))
@@ -206,8 +208,44 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
             f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
             f"{r['task_s_mean']:.1f} |"
         )
+    settings = config.planner.settings()
+    lines += [
+        "",
+        "ASM settings: " + ", ".join(f"{k} {_onoff(v)}" for k, v in settings.items()) + ".",
+        "",
+        "How the trials ended, and what their executed actions did in the \"real\" world (the target moved by "
+        "1 cm or more; a transit touched a movable object; a transit touched a fixed obstacle):",
+        "",
+        "| failure | scenario | ASM | ends | actions | target moved >= 1 cm | transit touched an object "
+        "| transit hit a fixed obstacle |",
+        "| --- | --- | --- | --- | ---: | ---: | ---: | ---: |",
+    ]
+    for (f, sc, a), rs in _cells(records):
+        ends: dict[str, int] = {}
+        for r in rs:
+            ends[r["end"]] = ends.get(r["end"], 0) + 1
+        acts = [x for r in rs for x in r.get("steps", [])]
+        moved = [x for x in acts if x.get("target_moved_m") is not None]
+        share = (lambda n, d: f"{100 * n / d:.1f} %" if d else "-")  # noqa: E731
+        lines.append(
+            f"| {f} | {sc} | {a} | {', '.join(f'{n} {e}' for e, n in sorted(ends.items(), key=lambda kv: -kv[1]))} "
+            f"| {len(acts)} | {share(sum(x['target_moved_m'] >= 0.01 for x in moved), len(moved))} "
+            f"| {share(sum(bool(x.get('transit_contacts')) for x in acts), len(acts))} "
+            f"| {share(sum(bool(x.get('transit_hit_fixed')) for x in acts), len(acts))} |"
+        )
     lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]
     return "\n".join(lines)
+
+
+def _onoff(v) -> str:
+    return "on" if v is True else "off" if v is False else "none" if v is None else str(v)
+
+
+def _cells(records: list[dict]) -> list[tuple[tuple, list[dict]]]:
+    cells: dict[tuple, list[dict]] = {}
+    for r in records:
+        cells.setdefault((r["failure"], r["scenario"], r["asm"]), []).append(r)
+    return sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][1], ASMS.index(kv[0][2])))
 
 
 def plots(records: list[dict], out: Path) -> None:

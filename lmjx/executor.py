@@ -21,7 +21,7 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from .actions import Action, controls
+from .actions import CONTROL_DT, Action, controls
 from .robot import Robot
 from .scenarios import Layout
 from .scene import Physics, Scene, build_scene, object_qpos, quat_yaw, read_objects, set_state
@@ -32,6 +32,10 @@ class Observation:
     robot_q: np.ndarray  # (nq,) measured joint angles
     objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
     time: float  # seconds of execution so far
+    # what the last executed action did (a real backend reports what it can measure):
+    target_moved_m: float = float("nan")  # the target's displacement on the table [m]
+    transit_contacts: tuple[str, ...] = ()  # movable objects the arm touched before the edge began
+    transit_hit_fixed: bool = False  # the arm touched a fixed obstacle before the edge began
 
 
 class Executor(Protocol):
@@ -93,18 +97,50 @@ class SimulatedRealWorld:
         for _ in range(round(0.2 / self.scene.model.opt.timestep)):  # let contacts settle
             mujoco.mj_step(self.scene.model, self.data)
         self.time = 0.0
+        m = self.scene.model
+        robot_bodies = {self.robot.mj.body(b).name for b in range(1, self.robot.mj.nbody)}
+        self._robot_geom = np.array([m.body(int(m.geom_bodyid[g])).name in robot_bodies for g in range(m.ngeom)])
+        self._object_of = {int(m.geom(f"{b.name}_geom").id): b.name for b in layout.scenario.movable}
+        self._fixed_of = {int(m.geom(b.name).id): b.name for b in layout.scenario.fixed}
         return self.observe()
+
+    def _touching(self) -> tuple[set[str], set[str]]:
+        """Movable objects and fixed obstacles in contact with the arm now."""
+        assert self.data is not None
+        objects, fixed = set(), set()
+        for c in self.data.contact[: self.data.ncon]:
+            g1, g2 = int(c.geom1), int(c.geom2)
+            for a, b in ((g1, g2), (g2, g1)):
+                if self._robot_geom[a]:
+                    if b in self._object_of:
+                        objects.add(self._object_of[b])
+                    elif b in self._fixed_of:
+                        fixed.add(self._fixed_of[b])
+        return objects, fixed
 
     def execute(self, action: Action) -> Observation:
         assert self.scene is not None and self.data is not None, "reset first"
         m, d = self.scene.model, self.data
-        for u in controls(action, m.opt.timestep, self.settle):
+        before = self.truth()[0, :2]
+        transit = action.transit_steps * round(CONTROL_DT / m.opt.timestep)  # physics steps before the edge
+        touched: set[str] = set()
+        hit_fixed: set[str] = set()
+        for i, u in enumerate(controls(action, m.opt.timestep, self.settle)):
             d.ctrl[:] = u
             mujoco.mj_step(m, d)
+            if i < transit and d.ncon:
+                objects, fixed = self._touching()
+                touched |= objects
+                hit_fixed |= fixed
             if self.on_step is not None:
                 self.on_step(m, d)
         self.time += action.duration + self.settle
-        return self.observe()
+        obs = self.observe()
+        obs.target_moved_m = float(np.hypot(*(self.truth()[0, :2] - before)))
+        names = [b.name for b in self.scene.scenario.movable]
+        obs.transit_contacts = tuple(n for n in names if n in touched)
+        obs.transit_hit_fixed = bool(hit_fixed)
+        return obs
 
     def truth(self) -> np.ndarray:
         assert self.scene is not None and self.data is not None

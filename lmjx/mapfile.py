@@ -27,7 +27,7 @@ from .reach import ReachConfig, ReachResult
 from .robot import ROBOTS, Robot, load_robot
 
 SCHEMA = "lmjx-map"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: the spatial index lists the edges whose whole arm (swept capsules) reaches a cell
 LABEL_MEANING = "0 unreachable, 1 NPM only (push/poke), 2 PM (grasp)"
 
 _STR = h5py.string_dtype(encoding="utf-8")
@@ -467,8 +467,17 @@ def load_map(
                 raise MapFileError(f"{p} is an HDF5 file but not an lmjx map (no schema='{SCHEMA}' attribute)")
             version = int(attrs.get("schema_version", -1))
             if version != SCHEMA_VERSION:
+                rebuild = ""
+                if version == 1 and "failure" in attrs:
+                    robot_name = file_robot(attrs)
+                    rebuild = (
+                        f": its spatial index follows one interaction point, not the whole arm; rebuild it with "
+                        f"lmjx build-map{'' if robot_name == 'panda' else f' --robot {robot_name}'} "
+                        f"--failure \"{_attr_str(attrs['failure'])}\" --out {p}"
+                    )
                 raise MapFileError(
                     f"{p} has map schema version {version}; this lmjx ({__version__}) reads version {SCHEMA_VERSION}"
+                    + rebuild
                 )
             robot = robot_for_file(p, attrs, robot) if check_robot else (robot or load_robot(file_robot(attrs)))
             if check_robot and _attr_str(attrs.get("robot_model_hash", "")) != robot.model_hash:

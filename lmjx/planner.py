@@ -22,9 +22,10 @@ the arm itself are skipped.  Everything random comes from the trial's seed.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Generator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 import numpy as np
@@ -58,12 +59,42 @@ class PlannerConfig:
     goal_margin: float = 0.01  # stop once the observed target is this far inside the goal region [m]
     futile_radius: float = 0.01  # an executed edge that made no progress is not offered again
     # while the target stays within this distance of where it was [m]
+    # lmjx's refinements of the paper's ASMs, each of which can be turned off (`paper()`):
+    futile_filter: bool = True  # edges that failed here are not offered again (futile_radius)
+    path_score: bool = True  # "closest" = path length around the fixed obstacles (else straight distance)
+    lazy_fallback: bool = True  # Lazy takes its best simulated edge when none brings the target closer
+    lazy_cap: bool = True  # Lazy stops after lazy_tries simulations (the paper: no cap)
+    greedy_fraction: float | None = None  # Greedy's subset: this fraction of the edges over the
+    # target (at least one) instead of greedy_candidates
 
     def validate(self) -> None:
         if self.asm not in ASMS:
             raise ConfigError(f"unknown action selection mechanism '{self.asm}'; use random, lazy or greedy")
         if self.max_actions < 1 or self.greedy_candidates < 1 or self.lazy_tries < 1:
             raise ConfigError("max_actions, greedy_candidates and lazy_tries must be positive")
+        if self.greedy_fraction is not None and not 0.0 < self.greedy_fraction <= 1.0:
+            raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
+
+    def paper(self) -> PlannerConfig:
+        """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
+        distance to the goal, Lazy over all the edges over the target in random order with no
+        fallback (when none moves the target toward the goal: no action), Greedy on a uniform
+        subset of a quarter of them."""
+        return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
+                       greedy_fraction=0.25)  # fmt: skip
+
+    def settings(self) -> dict:
+        """The refinements on or off, for the records."""
+        greedy = f"{self.greedy_candidates} candidates"
+        if self.greedy_fraction is not None:
+            greedy = f"{self.greedy_fraction:g} of the edges over the target"
+        return {
+            "futile_filter": self.futile_filter,
+            "path_score": self.path_score,
+            "lazy_fallback": self.lazy_fallback,
+            "lazy_tries": self.lazy_tries if self.lazy_cap else None,
+            "greedy_subset": greedy,
+        }
 
 
 @dataclass
@@ -75,6 +106,26 @@ class StepRecord:
     distance_after: float
     planning_s: float
     execution_s: float
+    # what the executed action did in the "real" world (Observation's report)
+    target_moved_m: float = float("nan")
+    transit_contacts: tuple[str, ...] = ()
+    transit_hit_fixed: bool = False
+
+    def summary(self) -> dict:
+        return {
+            "edge": self.edge,
+            "candidates": self.candidates,
+            "simulated": self.simulated,
+            "distance_after_m": round(self.distance_after, 4),
+            "planning_s": round(self.planning_s, 3),
+            "target_moved_m": None if np.isnan(self.target_moved_m) else round(self.target_moved_m, 4),
+            "transit_contacts": list(self.transit_contacts),
+            "transit_hit_fixed": self.transit_hit_fixed,
+        }
+
+
+ENDS = ("goal", "budget", "planning time", "no edge over the target", "no feasible transit", "no edge moves the target",
+        "target off the table")  # fmt: skip
 
 
 @dataclass
@@ -96,6 +147,20 @@ class TrialResult:
             "final_distance_m": round(self.final_distance, 4),
             "end": self.reason,
         }
+
+    def action_records(self) -> list[dict]:
+        """Per executed action: what it did (see `StepRecord.summary`)."""
+        return [s.summary() for s in self.steps if s.edge >= 0]
+
+
+class _Straight:
+    """The straight distance to the goal's centre (the paper's score), called as a GoalField."""
+
+    def __init__(self, sc: Scenario) -> None:
+        self.sc = sc
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        return goal_distance(self.sc, np.asarray(xy))
 
 
 def goal_distance(sc: Scenario, xy: np.ndarray) -> np.ndarray:
@@ -216,7 +281,7 @@ class Planner:
         batched = bool(getattr(simulator, "prefers_batches", False))
         self.batched = batched
         self.transits = transits or TransitPlanner(robot, failure, batched=batched)
-        self.field = GoalField(sc, *table_bounds(robot))
+        self.field = GoalField(sc, *table_bounds(robot)) if config.path_score else _Straight(sc)
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
         self.futile: dict[int, np.ndarray] = {}
@@ -232,8 +297,9 @@ class Planner:
         """One decision: yields the simulations it needs; returns (action or None, record)."""
         cfg = self.config
         target = obs.objects[0, :2]
+        self.transits.set_scene(self.sc, obs.objects)
         edges = edges_over_target(self.bundle, self.reach, target, float(self.sc.target.half[0]), cfg.target_margin)
-        if self.futile:
+        if cfg.futile_filter and self.futile:
             keep = [e for e in edges if not self._futile_here(int(e), target)]
             edges = np.asarray(keep, edges.dtype)
         order = rng.permutation(edges)
@@ -245,20 +311,25 @@ class Planner:
                 rec.edge = acts[0].edge
             return (acts[0] if acts else None), rec
         if cfg.asm == "greedy":
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, cfg.greedy_candidates)
+            want = cfg.greedy_candidates
+            if cfg.greedy_fraction is not None:
+                want = max(1, math.ceil(cfg.greedy_fraction * len(edges)))
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, want)
             if not acts:
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
-            best = int(np.argmin(s))
+            best = self.best_of(s, rng)
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
             rec.edge = acts[best].edge
             return acts[best], rec
         # lazy: in random order, the first that brings the target closer wins
         best_a, best_s = None, np.inf
+        tries = cfg.lazy_tries if cfg.lazy_cap else len(order)
+        improved = False
         if self.batched:  # its tries at once, then the first improvement in their order
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, cfg.lazy_tries)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries)
             rec.simulated = len(acts)
             if acts:
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -266,10 +337,11 @@ class Planner:
                     if float(sc) < best_s:
                         best_a, best_s = a, float(sc)
                     if sc <= now - cfg.min_progress:
+                        improved = True
                         break
         else:  # one at a time, stopping at the first improvement
             for e in order:
-                if rec.simulated == cfg.lazy_tries:
+                if rec.simulated == tries:
                     break
                 acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1)
                 if not acts:
@@ -280,11 +352,19 @@ class Planner:
                 if sc < best_s:
                     best_a, best_s = acts[0], sc
                 if sc <= now - cfg.min_progress:
+                    improved = True
                     break
+        if not (improved or cfg.lazy_fallback):
+            best_a = None
         if best_a is not None:
             rec.edge = best_a.edge
             rec.predicted_distance = best_s
         return best_a, rec
+
+    @staticmethod
+    def best_of(scores: np.ndarray, rng: np.random.Generator) -> int:
+        """Greedy's choice among its simulated candidates: the lowest score."""
+        return int(np.argmin(scores))
 
     def _futile_here(self, edge: int, target: np.ndarray) -> bool:
         at = self.futile.get(edge)
@@ -315,17 +395,28 @@ class Planner:
             action, rec = yield from self._timed_decision(obs, rng)
             planning += rec.planning_s
             if action is None:
-                reason = "no edge" if rec.candidates == 0 else "no feasible transit"
+                reason = "no feasible transit"
+                if rec.candidates == 0:
+                    reason = "no edge over the target"
+                elif rec.simulated > 0:
+                    reason = "no edge moves the target"
                 steps.append(rec)
                 break
             t_before = obs.time
             before = obs.objects[0, :2].copy()
             obs = yield Execute(action)
-            if float(self.field(obs.objects[0, :2])) > float(self.field(before)) - cfg.min_progress:
+            closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
+            if cfg.futile_filter and not closer:
                 self.futile[action.edge] = before
             rec.execution_s = obs.time - t_before
             rec.distance_after = float(goal_distance(self.sc, obs.objects[0, :2]))
+            rec.target_moved_m = obs.target_moved_m
+            rec.transit_contacts = obs.transit_contacts
+            rec.transit_hit_fixed = obs.transit_hit_fixed
             steps.append(rec)
+            if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
+                reason = "target off the table"
+                break
         else:
             if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"

@@ -41,6 +41,9 @@ import pytest  # noqa: E402
 # The small case-2 map every planning and map-file test shares (tests/golden.py's arguments),
 # built in chunks of 1000 edges.
 SMALL_MAP = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1", "--chunk", "1000")
+# The planner's tests: a map dense enough that edges over a target pass the transit and
+# contact tests (the make-run map's arguments; the launch size of the shared small map).
+PLAN_MAP = ("--failure", "case2", "--edges", "10000", "--seed", "0", "--chunk", "1000")
 # A four-joint arm whose kernels compile several times faster than the Panda's and whose maps
 # take a fraction of the work: the tests that build maps again and again (other chunkings,
 # kills and resumes, several host devices or processes) and the atlas tests build its.
@@ -243,6 +246,14 @@ def small_map(tmp_path_factory) -> Path:
     its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
     path = tmp_path_factory.mktemp("small_map") / "case2.h5"
     cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
+    return path
+
+
+@pytest.fixture(scope="session")
+def plan_map(tmp_path_factory) -> Path:
+    """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` in this process."""
+    path = tmp_path_factory.mktemp("plan_map") / "case2.h5"
+    cli("build-map", *PLAN_MAP, "--out", path).ok()
     return path
 
 

@@ -187,3 +187,45 @@ def test_capsule_box_inside_is_negative(n):
     eye = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     c = capsule_box_clearance(a, b, 0.01, (0.0, 0.0, 0.0), eye, [0.05, 0.05, 0.05])
     np.testing.assert_allclose(np.asarray(c), -0.06, atol=1e-6)
+
+
+@pytest.mark.parametrize("number", [2, 3])
+def test_scene_box_clearance_matches_mj_geom_distance(robot, number):
+    """The transits' box-clearance kernel (the planner's program: the scene's boxes as
+    inputs) against C MuJoCo's mj_geomDistance between every arm capsule and every box of a
+    scenario's scene (scenario 3: twelve movable boxes, turned; scenario 2: the tunnel's fixed
+    walls and roof), at random configurations: the smallest over the capsules per box."""
+    from lmjx.actions import TransitPlanner
+    from lmjx.failure import parse_failure
+    from lmjx.scenarios import sample_layout, scenario
+    from lmjx.scene import build_scene, object_qpos, read_objects, set_state
+
+    sc = scenario(number)
+    scene = build_scene(robot, sc)
+    m, d = scene.model, mujoco.MjData(scene.model)
+    q = random_configs(robot, 2000, 11)
+    set_state(scene, d, q[0], object_qpos(scene, sample_layout(sc, 4).poses))
+    mujoco.mj_kinematics(m, d)
+    objects = read_objects(scene, d)
+    transits = TransitPlanner(robot, parse_failure("none", robot), batched=True)
+    transits.set_scene(sc, objects)
+    # the 100 configurations nearest the boxes (by the kernel) and 20 others
+    near = np.argsort(transits.box_clearance(q).min(axis=1))
+    q = q[np.concatenate([near[:100], near[-20:]])]
+    ours = transits.box_clearance(q)
+    robot_bodies = {robot.mj.body(b).name for b in range(1, robot.mj.nbody)}
+    arm_geoms = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE
+                 and m.body(int(m.geom_bodyid[g])).name in robot_bodies and m.geom_contype[g]]  # fmt: skip
+    box_geoms = [m.geom(f"{b.name}_geom").id for b in sc.movable] + [m.geom(b.name).id for b in sc.fixed]
+    assert len(arm_geoms) == len(robot.arm.cap_r) and ours.shape == (len(q), len(box_geoms))
+    ref = np.zeros_like(ours, np.float64)
+    fromto = np.zeros(6)
+    for i, x in enumerate(q):
+        d.qpos[scene.robot_qpos] = x
+        mujoco.mj_kinematics(m, d)
+        for k, g in enumerate(box_geoms):
+            ref[i, k] = min(mujoco.mj_geomDistance(m, d, a, g, 10.0, fromto) for a in arm_geoms)
+    apart = (ref > 0) | (ours > 0)
+    assert apart.sum() > 0.5 * ref.size and (ref < 0.02).sum() > 20 and (ref < 0).sum() > 0
+    assert np.abs(ours - ref)[apart].max() < 5e-5
+    assert np.array_equal(ours < 0, ref < 0)

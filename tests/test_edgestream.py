@@ -224,7 +224,7 @@ def test_two_devices_and_two_processes_build_the_same_file(tiny_map, tmp_path):
     assert not (tmp_path / "p1.h5").exists()  # only process 0 writes
 
 
-def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, small_map):
+def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, plan_map):
     """The planner on a map whose states stay in the file (read on demand) makes the same
     Greedy decisions as on the map read into memory; `lmjx info` reads no states."""
     from lmjx.executor import Observation
@@ -234,16 +234,16 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, small_map):
     from lmjx.scene import build_scene, object_qpos
     from lmjx.simulate import CpuSimulator
 
-    whole, lazy = load_map(small_map, robot, lazy=False), load_map(small_map, robot, lazy=True)
+    whole, lazy = load_map(plan_map, robot, lazy=False), load_map(plan_map, robot, lazy=True)
     assert isinstance(whole.edges.q, np.ndarray) and isinstance(lazy.edges.q, StateReader) and lazy.edges.q.fast
-    sc = scenario(3)
+    sc = scenario(1)
     scene = build_scene(robot, sc)
     sim = CpuSimulator(scene)
     cfg = PlannerConfig(asm="greedy", greedy_candidates=6)
     pw = Planner(robot, whole.failure, whole.reach, whole.edges, sc, sim, cfg)
     pl = Planner(robot, lazy.failure, lazy.reach, lazy.edges, sc, sim, cfg)
     decided = 0
-    for seed in range(4):
+    for seed in range(3):
         obs = Observation(pw.transits.park, object_qpos(scene, sample_layout(sc, seed).poses), 0.0)
         a, ra = pw.choose(obs, np.random.default_rng(seed))
         b, rb = pl.choose(obs, np.random.default_rng(seed))
@@ -253,7 +253,7 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, small_map):
             decided += 1
     assert decided >= 2
     lazy.close()
-    out = cli("info", small_map, "--json").ok().stdout
+    out = cli("info", plan_map, "--json").ok().stdout
     assert json.loads(out)["edges"]["valid"] == whole.edges.n_edges
 
 

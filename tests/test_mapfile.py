@@ -50,6 +50,7 @@ def test_validation_errors(case1_file, tmp_path):
         load_map(trunc)
     for attr, value, match in (
         ("schema_version", 99, "schema version 99"),
+        ("schema_version", 1, "whole arm; rebuild it with lmjx build-map --failure"),
         ("robot_model_hash", "0" * 64, "another version of the robot .panda."),
         ("schema", "something-else", "not an lmjx map"),
     ):

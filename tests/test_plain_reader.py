@@ -17,7 +17,7 @@ def map_file(small_map):
 
 def test_reach_map_by_the_schema(map_file):
     with h5py.File(map_file, "r") as f:
-        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 1
+        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 2
         assert f.attrs["contents"] == "reach+edges" and f.attrs["failure"] == "case2"
         assert list(f.attrs["locked_joints"]) == [6, 7]
         g = f["reach"]
@@ -58,6 +58,7 @@ def test_reconstruct_an_edge(map_file):
         mjcf = f["robot/mjcf"][()].decode()
         x, y = f["reach/x"][ix], f["reach/y"][iy]
         cell = float(f["reach"].attrs["cell"])
+        e_attrs_height = e["index"].attrs["height"]
         assert int(e.attrs["edges_valid"]) == len(off)
     assert len(q) == ln[edge] >= 2 and twist.shape == (6,)
     np.testing.assert_allclose(q[1:], q[:-1] + qd[:-1] * dt, atol=1e-5)  # the integration rule
@@ -68,4 +69,21 @@ def test_reconstruct_an_edge(map_file):
         mujoco.mj_forward(m, d)
         np.testing.assert_allclose(d.site_xpos[m.site(site).id], pi, atol=1e-5)
         assert d.ncon == 0
-    assert np.min(np.hypot(p[:, 0] - x, p[:, 1] - y)) <= cell  # it does pass by that cell
+    # the arm does pass by that cell, low: some capsule's axis comes within its radius of the
+    # cell's square at a point less than the index height (plus the radius) above the table
+    height = float(e_attrs_height)
+    near = np.inf
+    caps = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE and m.geom_bodyid[g] != 0
+            and m.geom_contype[g]]  # fmt: skip
+    for qi in q:
+        d.qpos[:] = qi
+        mujoco.mj_kinematics(m, d)
+        for g in caps:
+            axis = d.geom_xmat[g].reshape(3, 3)[:, 2] * m.geom_size[g][1]
+            pts = d.geom_xpos[g] + np.linspace(-1, 1, 101)[:, None] * axis
+            low = pts[:, 2] - m.geom_size[g][0] <= height + 1e-3
+            gx = np.maximum(np.abs(pts[low, 0] - x) - cell / 2, 0.0)
+            gy = np.maximum(np.abs(pts[low, 1] - y) - cell / 2, 0.0)
+            if low.any():
+                near = min(near, float(np.min(np.hypot(gx, gy) - m.geom_size[g][0])))
+    assert near <= 1e-3

@@ -17,7 +17,7 @@ from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
 from lmjx.executor import SimulatedRealWorld, real_physics
 from lmjx.failure import parse_failure
 from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig, score
+from lmjx.planner import ENDS, PlannerConfig, score
 from lmjx.scenarios import in_goal, sample_layout, scenario
 from lmjx.scene import build_scene, object_qpos, read_objects, set_state
 from lmjx.simulate import CpuSimulator
@@ -121,14 +121,14 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 
 
 @pytest.mark.parametrize("asm", ["random", "lazy", "greedy"])
-def test_trials_run_and_repeat(robot, small_map, asm):
-    m = load_map(small_map)
+def test_trials_run_and_repeat(robot, plan_map, asm):
+    m = load_map(plan_map)
     cfg = PlannerConfig(asm=asm, max_actions=3, greedy_candidates=8, lazy_tries=4)
     a = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
     b = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
     assert a.summary() | {"planning_s": 0} == b.summary() | {"planning_s": 0}
     assert 1 <= a.actions <= 3 and a.execution_s > 0
-    # the Panda plans as it did before lmjx took any robot (tests/golden.py)
+    # the Panda plans as it did when the golden trials were written (tests/golden.py)
     want = GOLDEN["trials"][asm]
     assert (a.success, a.actions, [s.edge for s in a.steps]) == (want["success"], want["actions"], want["edges"])
     assert a.final_distance == pytest.approx(want["final_distance_m"], abs=1e-6)
@@ -146,7 +146,13 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     r = cli("plan", "--map", small_map, "--scenario", "2", "--asm", "greedy", "--candidates", "8",
             "--max-actions", "2", "--json").ok()  # fmt: skip
     out = json.loads(r.stdout)
-    assert {"success", "actions", "planning_s", "execution_s"} <= set(out)
+    assert {"success", "actions", "planning_s", "execution_s", "end", "asm_settings", "steps"} <= set(out)
+    assert out["asm_settings"]["futile_filter"] is True
+    paper = json.loads(cli("plan", "--map", small_map, "--scenario", "2", "--asm", "lazy", "--asm-settings", "paper",
+                           "--max-actions", "1", "--json").ok().stdout)  # fmt: skip
+    want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
+            "greedy_subset": "0.25 of the edges over the target"}  # fmt: skip
+    assert paper["asm_settings"] == want
     for args, message in (
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
         (("plan", "--map", tmp_path / "none.h5", "--scenario", "1", "--asm", "lazy"), "does not exist"),
@@ -165,7 +171,13 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     cli(*args).ok()
     records = json.loads((ev / "results.json").read_text())
     assert len(records) == 4
-    assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s"}
+    assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s",
+                               "end", "asm_settings", "steps"}  # fmt: skip
+    assert all(r["end"] in ENDS for r in records)
+    for step in (x for r in records for x in r["steps"]):
+        assert {"target_moved_m", "transit_contacts", "transit_hit_fixed"} <= set(step)
+        assert not step["transit_hit_fixed"]
+    assert "How the trials ended" in (ev / "report.md").read_text()
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
     r = cli(*args)  # resumes: nothing left to do
     assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
@@ -215,14 +227,14 @@ def test_batched_transits_equal_c_mujoco_transits(robot, small_map):
     assert [x.edge for x in batch.actions(m.edges, edges, one.park, 5)] == [x.edge for x in first]
 
 
-def test_lockstep_trials_equal_trials_run_alone(robot, small_map):
+def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     """Trials run together (lmjx.lockstep, as lmjx evaluate runs them) decide as they do alone."""
     from lmjx.lockstep import run_lockstep
     from lmjx.trial import make_simulator
 
-    m = load_map(small_map)
+    m = load_map(plan_map)
     sim = make_simulator(robot, 1, "cpu")
-    cfgs = [PlannerConfig(asm=a, max_actions=3, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
+    cfgs = [PlannerConfig(asm=a, max_actions=2, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
                                                                                                "greedy")]  # fmt: skip
     alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim)).summary() for c in cfgs]
     setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim) for c in cfgs]
@@ -241,13 +253,13 @@ class _BatchPreferringCpu(CpuSimulator):
     prefers_batches = True
 
 
-def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, small_map):
+def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
     """With a simulator that prefers batches, Lazy simulates its tries at once and takes the
     first improvement in their order: the same choice as trying them one at a time."""
     from lmjx.executor import Observation
     from lmjx.planner import Planner
 
-    m = load_map(small_map)
+    m = load_map(plan_map)
     sc = scenario(1)
     scene = build_scene(robot, sc)
     cfg = PlannerConfig(asm="lazy", lazy_tries=6)
@@ -255,7 +267,7 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, small_map):
     batch = Planner(robot, m.failure, m.reach, m.edges, sc, _BatchPreferringCpu(scene), cfg,
                     transits=one.transits)  # fmt: skip
     chosen = 0
-    for seed in range(6):
+    for seed in range(4):
         obs = Observation(one.transits.park, object_qpos(scene, sample_layout(sc, seed).poses), 0.0)
         a, ra = one.choose(obs, np.random.default_rng(seed))
         b, rb = batch.choose(obs, np.random.default_rng(seed))
@@ -264,7 +276,7 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, small_map):
             assert a.edge == b.edge and ra.predicted_distance == rb.predicted_distance
             assert ra.simulated <= rb.simulated
             chosen += 1
-    assert chosen >= 4
+    assert chosen >= 3
 
 
 def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
@@ -281,3 +293,114 @@ def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
     out = json.loads(r.stdout)
     assert out["simulator"] in ("cpu", "gpu") and out["simulator_reason"] and out["candidates"] == 4
     assert f"simulator {out['simulator']}" in r.stderr
+
+
+@pytest.mark.parametrize("number", [1, 2])
+def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
+    """Every configuration of every offered transit keeps its margins to the scene, by C
+    MuJoCo's mj_geomDistance (movable objects at their observed poses: OBJECT_MARGIN; the
+    tunnel: FIXED_MARGIN), the edge's start included; an offered edge's states keep
+    FIXED_MARGIN from a fixed obstacle too; and edges whose start lies against an object are not offered."""
+    from lmjx.actions import FIXED_MARGIN, OBJECT_MARGIN, TARGET_CONTACT
+    from lmjx.planner import edges_over_target
+
+    m = load_map(plan_map)
+    sc = scenario(number)
+    layout = sample_layout(sc, 5)
+    scene = build_scene(robot, sc)
+    model, d = scene.model, mujoco.MjData(scene.model)
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    set_state(scene, d, tp.park, object_qpos(scene, layout.poses))
+    mujoco.mj_kinematics(model, d)
+    objects = read_objects(scene, d)
+    tp.set_scene(sc, objects, acting=False)
+    edges = edges_over_target(m.edges, m.reach, objects[0, :2], float(sc.target.half[0]), 0.01)
+    acts = tp.actions(m.edges, edges, tp.park, len(edges))
+    assert 0 < len(acts) < len(edges)
+    robot_bodies = {robot.mj.body(b).name for b in range(1, robot.mj.nbody)}
+    arm = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE
+           and model.body(int(model.geom_bodyid[g])).name in robot_bodies and model.geom_contype[g]]  # fmt: skip
+    movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
+    fixed = [model.geom(b.name).id for b in sc.fixed]
+    fromto = np.zeros(6)
+
+    def clearance(q, geoms):
+        d.qpos[scene.robot_qpos] = q
+        mujoco.mj_kinematics(model, d)
+        return min((mujoco.mj_geomDistance(model, d, a, g, 1.0, fromto) for a in arm for g in geoms), default=1.0)
+
+    for a in acts:
+        for q in a.q[: a.transit_steps]:
+            assert clearance(q, movable) >= OBJECT_MARGIN - 1e-4
+            assert clearance(q, fixed) >= FIXED_MARGIN - 1e-4
+        for q in a.q[a.transit_steps :: 3]:
+            assert clearance(q, fixed) >= FIXED_MARGIN - 1e-4
+    refused = [int(e) for e in edges if int(e) not in {a.edge for a in acts}]
+    starts_against = [e for e in refused if clearance(m.edges.edge(e)["q"][0], movable) < OBJECT_MARGIN]
+    assert starts_against  # such edges exist over the target, and none is offered
+    # acting: of those, exactly the edges whose arm comes within TARGET_CONTACT of the target
+    tp.set_scene(sc, objects)
+    acting = {a.edge for a in tp.actions(m.edges, edges, tp.park, len(edges))}
+    assert acting < {a.edge for a in acts} and (acting or number == 2)  # the tunnel: none on this map
+    for a in acts:
+        nearest = min(clearance(q, movable[:1]) for q in m.edges.edge(a.edge)["q"])
+        assert (nearest <= TARGET_CONTACT + 1e-4) if a.edge in acting else (nearest >= TARGET_CONTACT - 1e-4)
+
+
+def sign_test_p(wins: int, losses: int) -> float:
+    """One-sided paired sign test: P(at least `wins` of wins + losses under a fair coin)."""
+    import math
+
+    n = wins + losses
+    return sum(math.comb(n, k) for k in range(wins, n + 1)) / 2**n if n else 1.0
+
+
+def paired_decisions(robot, small_map, greedy_pick=None) -> list[tuple[float, float, bool]]:
+    """For 11 seeded trial starts (scenario 1, seeds 40-50; used by no other test):
+    Greedy's action and Random's on the same observed state, each executed in a fresh
+    "real" world of that seed; the target's path length to the goal after each, and whether
+    any transit touched a fixed obstacle.  `greedy_pick` replaces Greedy's choice among its
+    simulated candidates (to show that the test notices)."""
+    from lmjx.planner import Planner
+
+    m = load_map(small_map)
+    transits = TransitPlanner(robot, m.failure)
+    out = []
+    for number in (1,):
+        sc = scenario(number)
+        sim = CpuSimulator(build_scene(robot, sc))
+        planners = {}
+        for asm in ("greedy", "random"):
+            config = PlannerConfig(asm=asm, greedy_candidates=8)
+            planners[asm] = Planner(robot, m.failure, m.reach, m.edges, sc, sim if asm == "greedy" else None, config,
+                                    transits)  # fmt: skip
+        if greedy_pick is not None:
+            planners["greedy"].best_of = greedy_pick
+        for seed in range(40, 51):
+            layout = sample_layout(sc, seed)
+            obs = SimulatedRealWorld(robot, seed).reset(layout, transits.park)
+            after, fixed = {}, False
+            for asm, planner in planners.items():
+                action, _ = planner.choose(obs, np.random.default_rng(seed))
+                world = SimulatedRealWorld(robot, seed)
+                world.reset(layout, transits.park)
+                if action is None:
+                    after[asm] = float(planner.field(world.truth()[0, :2]))
+                    continue
+                done = world.execute(action)
+                fixed |= done.transit_hit_fixed
+                after[asm] = float(planner.field(world.truth()[0, :2]))
+            out.append((after["greedy"], after["random"], fixed))
+    return out
+
+
+def test_greedy_leaves_the_target_closer_than_random(robot, plan_map):
+    """Planning quality: on the same observed states, the action Greedy picks (8 candidates
+    simulated in C MuJoCo), executed in the "real" world, leaves the target closer to the
+    goal than Random's pick, by a paired sign test at p < 0.01 (pairs within 1 mm are ties);
+    and no transit of either touches a fixed obstacle."""
+    pairs = paired_decisions(robot, plan_map)
+    wins = sum(g < r - 1e-3 for g, r, _ in pairs)
+    losses = sum(g > r + 1e-3 for g, r, _ in pairs)
+    assert sign_test_p(wins, losses) < 0.01, (wins, losses, pairs)
+    assert not any(f for _, _, f in pairs)
