@@ -55,6 +55,7 @@ from .batching import device_description
 from .bundle import (
     BundleConfig,
     EdgeKernels,
+    _ends_kernel,
     chunk_ranges,
     draw_edges,
     roll_out,
@@ -290,7 +291,8 @@ def _build_map(
         kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half, ik_chunk=reach_cfg.chunk)]
     # The edges' programs compile in a thread of their own while the reach map is computed
     # (they do not depend on it).
-    warmed = _in_background(lambda: [ks.warm() for ks in kernel_sets])
+    # the edge programs and the spatial index's capsule program
+    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), _ends_kernel(robot).compile()])
     t0 = time.perf_counter()
     if reach is None:
         # every process computes the reach map (the edges are drawn from it)

@@ -42,8 +42,8 @@ import pytest  # noqa: E402
 # built in chunks of 1000 edges.
 SMALL_MAP = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1", "--chunk", "1000")
 # The planner's tests: a map dense enough that edges over a target pass the transit and
-# contact tests (the make-run map's arguments; the launch size of the shared small map).
-PLAN_MAP = ("--failure", "case2", "--edges", "10000", "--seed", "0", "--chunk", "1000")
+# contact tests (2 cm cells as make run's; the launch size of the shared small map).
+PLAN_MAP = ("--failure", "case2", "--edges", "6000", "--seed", "0", "--chunk", "1000")
 # A four-joint arm whose kernels compile several times faster than the Panda's and whose maps
 # take a fraction of the work: the tests that build maps again and again (other chunkings,
 # kills and resumes, several host devices or processes) and the atlas tests build its.

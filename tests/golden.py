@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 MAP_ARGS = ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1")  # build-map arguments
-TRIAL = {"scenario": 1, "seed": 3, "max_actions": 3, "greedy_candidates": 8, "lazy_tries": 4}
+TRIAL = {"scenario": 1, "seed": 3, "max_actions": 2, "greedy_candidates": 8, "lazy_tries": 4}
 
 
 def _digest(a: np.ndarray) -> str:

@@ -186,7 +186,7 @@ def test_spatial_index_is_the_whole_arm_against_c_mujoco(robot, case2):
         for e in b.index_edges[b.index_offset[c] : b.index_offset[c + 1]]:
             listed.setdefault(int(e), set()).add(c)
     height = b.config.index_height
-    edges = list(range(0, b.n_edges, max(1, b.n_edges // 20)))
+    edges = list(range(0, b.n_edges, max(1, b.n_edges // 12)))
     checked = 0
     for e in edges:
         q = b.edge(e)["q"].astype(np.float64)
@@ -195,7 +195,7 @@ def test_spatial_index_is_the_whole_arm_against_c_mujoco(robot, case2):
         got = listed.get(e, set())
         assert inner <= got <= outer, (e, sorted(inner - got), sorted(got - outer))
         checked += len(got)
-    assert checked > 30
+    assert checked > 20
     # the whole arm reaches more than the interaction point alone did
     assert len(b.index_edges) > 0
 

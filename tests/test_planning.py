@@ -123,11 +123,11 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 @pytest.mark.parametrize("asm", ["random", "lazy", "greedy"])
 def test_trials_run_and_repeat(robot, plan_map, asm):
     m = load_map(plan_map)
-    cfg = PlannerConfig(asm=asm, max_actions=3, greedy_candidates=8, lazy_tries=4)
+    cfg = PlannerConfig(asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4)
     a = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
     b = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
     assert a.summary() | {"planning_s": 0} == b.summary() | {"planning_s": 0}
-    assert 1 <= a.actions <= 3 and a.execution_s > 0
+    assert 1 <= a.actions <= 2 and a.execution_s > 0
     # the Panda plans as it did when the golden trials were written (tests/golden.py)
     want = GOLDEN["trials"][asm]
     assert (a.success, a.actions, [s.edge for s in a.steps]) == (want["success"], want["actions"], want["edges"])
@@ -234,7 +234,7 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
 
     m = load_map(plan_map)
     sim = make_simulator(robot, 1, "cpu")
-    cfgs = [PlannerConfig(asm=a, max_actions=2, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
+    cfgs = [PlannerConfig(asm=a, max_actions=1, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
                                                                                                "greedy")]  # fmt: skip
     alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim)).summary() for c in cfgs]
     setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim) for c in cfgs]
@@ -262,12 +262,12 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
     m = load_map(plan_map)
     sc = scenario(1)
     scene = build_scene(robot, sc)
-    cfg = PlannerConfig(asm="lazy", lazy_tries=6)
+    cfg = PlannerConfig(asm="lazy", lazy_tries=4)
     one = Planner(robot, m.failure, m.reach, m.edges, sc, CpuSimulator(scene), cfg)
     batch = Planner(robot, m.failure, m.reach, m.edges, sc, _BatchPreferringCpu(scene), cfg,
                     transits=one.transits)  # fmt: skip
     chosen = 0
-    for seed in range(4):
+    for seed in range(3):
         obs = Observation(one.transits.park, object_qpos(scene, sample_layout(sc, seed).poses), 0.0)
         a, ra = one.choose(obs, np.random.default_rng(seed))
         b, rb = batch.choose(obs, np.random.default_rng(seed))
@@ -276,7 +276,7 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
             assert a.edge == b.edge and ra.predicted_distance == rb.predicted_distance
             assert ra.simulated <= rb.simulated
             chosen += 1
-    assert chosen >= 3
+    assert chosen >= 2
 
 
 def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
