@@ -28,6 +28,7 @@ import numpy as np
 from .bundle import Bundle
 from .failure import Failure
 from .robot import Robot
+from .scene import yaw_quat
 
 CONTROL_DT = 0.02  # the edges' control period [s]
 OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
@@ -69,18 +70,14 @@ class SceneBoxes:
 
 def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
     """The boxes of scenario `sc` with its movable objects at poses `objects` (n, 7)."""
-    boxes, centers, rots = [], [], []
-    for b, pose in zip(sc.movable, objects, strict=True):
+    boxes = [(b, True) for b in sc.movable] + [(b, False) for b in sc.fixed]
+    fixed = [np.array([b.x, b.y, b.zc, *yaw_quat(b.yaw)]) for b in sc.fixed]
+    centers, rots = [], []
+    for _, pose in zip(boxes, [*np.asarray(objects, np.float64), *fixed], strict=True):
         m = np.zeros(9)
-        mujoco.mju_quat2Mat(m, np.asarray(pose[3:], np.float64))
-        boxes.append((b, True))
+        mujoco.mju_quat2Mat(m, pose[3:])
         centers.append(pose[:3])
         rots.append(m.reshape(3, 3))
-    for b in sc.fixed:
-        c, s_ = np.cos(b.yaw), np.sin(b.yaw)
-        boxes.append((b, False))
-        centers.append((b.x, b.y, b.zc))
-        rots.append(np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]))
     return SceneBoxes(
         names=tuple(b.name for b, _ in boxes),
         movable=np.array([m for _, m in boxes], bool),
@@ -177,10 +174,10 @@ class TransitPlanner:
         axis's distance to the box's centre less the capsule's radius and the box's
         circumradius (the capsules from lmjx's capsule kernel, a pass far cheaper than the
         exact clearance, which only the configurations this leaves in doubt need)."""
-        from .bundle import _ends_kernel
+        from .bundle import capsule_ends_kernel
 
         assert self.scene is not None
-        ends = _ends_kernel(self.robot).run(np.asarray(qs, np.float32))
+        ends = capsule_ends_kernel(self.robot).run(np.asarray(qs, np.float32))
         a, b = ends["a"].astype(np.float64), ends["b"].astype(np.float64)  # (n, nc, 3)
         c = self.scene.centers  # (nb, 3)
         d = b - a

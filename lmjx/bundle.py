@@ -573,7 +573,7 @@ _ENDS: dict[str, Any] = {}
 _ENDS_LOCK = threading.Lock()
 
 
-def _ends_kernel(robot: Robot):
+def capsule_ends_kernel(robot: Robot):
     """jit(vmap(capsule_ends)) for `robot`, one per process (shared by the packing threads)."""
     from .kernels.collision import capsule_ends
 
@@ -612,7 +612,7 @@ def arm_index_pairs(
     r_cap = np.asarray(arm.cap_r, np.float64)[caps]
     edge_of_row = np.repeat(np.arange(len(length), dtype=np.int64), length)
     width = max(1, len(length))
-    kernel = _ends_kernel(robot)
+    kernel = capsule_ends_kernel(robot)
     keys: list[np.ndarray] = []
     for s0 in range(0, len(q), INDEX_STATES):
         ends = kernel.run(np.asarray(q[s0 : s0 + INDEX_STATES], np.float32))

@@ -55,7 +55,7 @@ from .batching import device_description
 from .bundle import (
     BundleConfig,
     EdgeKernels,
-    _ends_kernel,
+    capsule_ends_kernel,
     chunk_ranges,
     draw_edges,
     roll_out,
@@ -292,7 +292,7 @@ def _build_map(
     # The edges' programs compile in a thread of their own while the reach map is computed
     # (they do not depend on it).
     # the edge programs and the spatial index's capsule program
-    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), _ends_kernel(robot).compile()])
+    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), capsule_ends_kernel(robot).compile()])
     t0 = time.perf_counter()
     if reach is None:
         # every process computes the reach map (the edges are drawn from it)

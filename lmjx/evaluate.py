@@ -226,15 +226,18 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
             ends[r["end"]] = ends.get(r["end"], 0) + 1
         acts = [x for r in rs for x in r.get("steps", [])]
         moved = [x for x in acts if x.get("target_moved_m") is not None]
-        share = (lambda n, d: f"{100 * n / d:.1f} %" if d else "-")  # noqa: E731
         lines.append(
             f"| {f} | {sc} | {a} | {', '.join(f'{n} {e}' for e, n in sorted(ends.items(), key=lambda kv: -kv[1]))} "
-            f"| {len(acts)} | {share(sum(x['target_moved_m'] >= 0.01 for x in moved), len(moved))} "
-            f"| {share(sum(bool(x.get('transit_contacts')) for x in acts), len(acts))} "
-            f"| {share(sum(bool(x.get('transit_hit_fixed')) for x in acts), len(acts))} |"
+            f"| {len(acts)} | {_share(sum(x['target_moved_m'] >= 0.01 for x in moved), len(moved))} "
+            f"| {_share(sum(bool(x.get('transit_contacts')) for x in acts), len(acts))} "
+            f"| {_share(sum(bool(x.get('transit_hit_fixed')) for x in acts), len(acts))} |"
         )
     lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]
     return "\n".join(lines)
+
+
+def _share(n: int, d: int) -> str:
+    return f"{100 * n / d:.1f} %" if d else "-"
 
 
 def _onoff(v) -> str:
