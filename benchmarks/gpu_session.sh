@@ -3,7 +3,8 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026; planner, gputests, evalgpu and decision need
+# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026; issue 19:
+# issue19, evmap (once per carried map), eval19 (again to continue); planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
@@ -79,6 +80,26 @@ for step in $steps; do
       # The GPU simulator's tests on the GPU, the 200-decision agreement among them.
       LMJX_TEST_MAPS="$WORK/maps" LMJX_TEST_REPORT="$OUT/agreement.json" timeout 580 python3 -m pytest -q -x \
         -p no:cacheprovider tests/test_simulate_gpu.py 2>&1 | tail -5 ;;
+    evmap)
+      # An evaluation map carried in .evm1 or .evm2 (one per call: the carry limit), kept in /tmp.
+      mkdir -p "$WORK/maps"; cp .evm*/*.h5 "$WORK/maps/" && ls -la "$WORK/maps" ;;
+    eval19)
+      # Issue 19: both task sets, on the GPU (MuJoCo Warp, 1,024 candidates) and on the 16 host
+      # cores (C MuJoCo, 32 candidates, JAX on the CPU) at once; resumable, each run stops
+      # before the call's limit (EVAL_S seconds from now) and the next call continues it.
+      deadline=$(( $(date +%s) + ${EVAL_S:-560} ))
+      run_eval() {  # sim tasks
+        left=$(( deadline - $(date +%s) )); [ $left -gt 20 ] || return 0
+        /usr/bin/time -f "eval $1 $2: %e s wall" timeout $left python3 -m lmjx.cli evaluate --sim $1 --tasks $2 \
+          --maps "$WORK/maps" --out "$WORK/ev_$1_$2" --json > "$WORK/ev_$1_$2.json" 2> "$WORK/ev_$1_$2.err"
+        tail -2 "$WORK/ev_$1_$2.err"; mkdir -p "$OUT/ev_$1_$2"; cp "$WORK/ev_$1_$2"/* "$OUT/ev_$1_$2/" 2>/dev/null
+        cp "$WORK/ev_$1_$2.json" "$OUT/ev_$1_$2/summary.json" 2>/dev/null
+      }
+      ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE
+        for t in ${TASKS:-paper hard}; do run_eval gpu $t; done ) &
+      ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS; for t in ${TASKS:-paper hard}; do run_eval cpu $t; done ) &
+      wait
+      for d in "$OUT"/ev_*; do python3 -c "import json,sys; r=json.load(open('$d/results.json')); print('$d', len(r), 'trials')" 2>/dev/null; done ;;
     evalgpu)
       # The paper's evaluation with the GPU simulator (resumable: run again to continue).
       timeout 580 python3 -m lmjx.cli evaluate --maps "$WORK/maps" --out "$WORK/eval_gpu" --json \

@@ -35,7 +35,7 @@ def measure(map_path: str, scenarios: list[int], seeds: list[int], per: int, rob
     transits = TransitPlanner(robot, m.failure, batched=True)
     moved, touched, fixed, offered = [], 0, 0, []
     for s in scenarios:
-        sc = scenario(s, robot.profile.task_scale)
+        sc = scenario(s, robot.profile.task_scale, "hard")
         for seed in seeds:
             layout = sample_layout(sc, seed)
             world = SimulatedRealWorld(robot, seed)

@@ -291,15 +291,17 @@ class TransitPlanner:
     def actions(self, bundle: Bundle, edges: np.ndarray, q_now: np.ndarray, want: int) -> list[Action]:
         """The first `want` feasible actions among `edges`, in their order (fewer if there are
         not that many).  Edges are taken in blocks (whatever the block, the same first
-        actions): the edges' own tests first (one batch of their states), then the transits
-        of those that pass."""
+        actions): their starts first (one configuration each), then the edges' own tests
+        (one batch of their states), then the transits of those that pass."""
         out: list[Action] = []
         block = max(want, MIN_BLOCK)
         i = 0
         while len(out) < want and i < len(edges):
             part = np.asarray(edges[i : i + block])
             i += len(part)
-            part = part[self.edges_usable(bundle, part)]
+            # the cheapest test first: most edges over a target start where an object stands
+            part = part[~self.blocked(bundle.q_start[part].astype(np.float64))]
+            part = part[self.edges_usable(bundle, part)] if len(part) else part
             if not len(part):
                 continue
             starts = bundle.q_start[part].astype(np.float64)

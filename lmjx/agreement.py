@@ -58,7 +58,7 @@ def decision_states(
         assert mf.edges is not None and mf.reach is not None
         tp = TransitPlanner(robot, mf.failure, batched=True)
         for s in scenarios:
-            sc = scenario(s, robot.profile.task_scale)
+            sc = scenario(s, robot.profile.task_scale, "hard")
             for seed in range(first_seed, first_seed + seeds):
                 rng = np.random.default_rng(seed)
                 world = SimulatedRealWorld(robot, 10_000 + seed)
@@ -85,7 +85,7 @@ def measure(
     for s in sorted({d.scenario for d in decisions}):
         group = [d for d in decisions if d.scenario == s]
         sim, ref = tested[s], reference[s]
-        sc = scenario(s, robot.profile.task_scale)
+        sc = scenario(s, robot.profile.task_scale, "hard")
         field = GoalField(sc, *table_bounds(robot))
         requests = [(d.observation.robot_q, d.observation.objects, d.actions) for d in group]
         t0 = time.perf_counter()

@@ -41,7 +41,7 @@ def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int,
     mf = load_map(map_path, robot)
     if mf.edges is None or mf.reach is None:
         raise ConfigError(f"{map_path} has no kinodynamic map (edges); build it with lmjx build-map")
-    sc = scenario(scenario_number, robot.profile.task_scale)
+    sc = scenario(scenario_number, robot.profile.task_scale, "hard")
     layout = sample_layout(sc, seed)
     scene = build_scene(robot, sc)
     objects = object_qpos(scene, layout.poses)
@@ -115,7 +115,7 @@ def bench_planner(
     row = {"simulator": "cpu-near", "what": near.description, "candidates": n, "seconds": t, "repeats": repeats}
     out["rows"].append({**row, "steps": steps, "steps_per_s": steps / t, **agreement(sc, robot, final, reference[n])})
     if sim_name == "gpu":
-        gpu = make_simulator(robot, scenario_number, "gpu")
+        gpu = make_simulator(robot, scenario_number, "gpu", "hard")
         for n in counts:
             capture = gpu.prepare(n, max(len(a.q) for a in acts[:n]))
             t0 = time.perf_counter()

@@ -24,6 +24,7 @@ from .mapfile import MapFile, load_map
 from .planner import ASMS, PlannerConfig, TrialResult
 from .progress import Progress
 from .robot import Robot
+from .scenarios import TASK_SETS
 from .trial import make_simulator, setup_trial
 
 ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
@@ -47,6 +48,7 @@ class EvalConfig:
     seed: int = 0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     backend: str = "cpu"
+    tasks: str = "paper"  # the task set (lmjx.scenarios.TASK_SETS)
 
     def validate(self) -> None:
         for a in self.asms:
@@ -55,6 +57,8 @@ class EvalConfig:
         for s in self.scenarios:
             if s not in (1, 2, 3):
                 raise ConfigError(f"unknown scenario {s}; the scenarios are 1, 2 and 3")
+        if self.tasks not in TASK_SETS:
+            raise ConfigError(f"unknown task set '{self.tasks}'; use paper or hard")
         if self.trials < 1:
             raise ConfigError("--trials must be at least 1")
 
@@ -98,6 +102,11 @@ def evaluate(
         raise ConfigError(
             f"{results_path} holds trials of the robot '{others[0]}', not '{robot.key}'; use another --out"
         )
+    tasks = sorted({str(r.get("tasks", "hard")) for r in records} - {config.tasks})
+    if tasks:
+        raise ConfigError(
+            f"{results_path} holds trials of the task set '{tasks[0]}', not '{config.tasks}'; use another --out"
+        )
     done = {(r["failure"], r["scenario"], r["asm"], r["seed"]) for r in records}
     todo = [
         (f, s, a, trial_seed(config.seed, s, t))
@@ -112,13 +121,13 @@ def evaluate(
     threads = os.cpu_count() or 1
     for s in sorted({k[1] for k in todo}):
         group = [k for k in todo if k[1] == s]
-        sim = make_simulator(robot, s, config.backend) if any(k[2] != "random" for k in group) else None
+        sim = make_simulator(robot, s, config.backend, config.tasks) if any(k[2] != "random" for k in group) else None
         batched = bool(sim is not None and sim.prefers_batches)
         transits = {f: TransitPlanner(robot, maps[f].failure, batched=batched) for f in {k[0] for k in group}}
         trials = []
         for f, _, a, seed in group:
             pc = PlannerConfig(**{**config.planner.__dict__, "asm": a})
-            setup = setup_trial(robot, maps[f], s, pc, seed, sim if a != "random" else None, transits[f])
+            setup = setup_trial(robot, maps[f], s, pc, seed, sim if a != "random" else None, transits[f], config.tasks)
             trials.append((setup.planner.trial(setup.world, setup.layout, setup.planner_seed), setup.world))
         bar.set_description(f"scenario {s}: {len(group)} trials together")
 
@@ -127,6 +136,7 @@ def evaluate(
             records.append(
                 {
                     "robot": robot.key,
+                    "tasks": config.tasks,
                     "failure": f,
                     "scenario": s_,
                     "asm": a,
@@ -191,9 +201,9 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
     lines = [
         "# lmjx evaluation" + (f": {robot.profile.description or robot.key}" if robot is not None else ""),
         "",
-        f"{len(records)} trials ({config.trials} per cell), simulator {simulator}; planner: "
-        f"greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} tries, "
-        f"at most {config.planner.max_actions} actions per task.",
+        f"{len(records)} trials ({config.trials} per cell), task set '{config.tasks}', simulator {simulator}; "
+        f"planner: greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} "
+        f"tries, at most {_budget(config)} actions per task.",
         "",
         "The trials of a scenario run together; on a GPU their candidates share batches, and a batch's seconds "
         "are charged to each trial in proportion to its candidates (its planning time).",
@@ -234,6 +244,12 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
         )
     lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]
     return "\n".join(lines)
+
+
+def _budget(config: EvalConfig) -> int:
+    from .scenarios import scenario
+
+    return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
 
 
 def _share(n: int, d: int) -> str:

@@ -34,8 +34,10 @@ class Observation:
     time: float  # seconds of execution so far
     # what the last executed action did (a real backend reports what it can measure):
     target_moved_m: float = float("nan")  # the target's displacement on the table [m]
-    transit_contacts: tuple[str, ...] = ()  # movable objects the arm touched before the edge began
-    transit_hit_fixed: bool = False  # the arm touched a fixed obstacle before the edge began
+    transit_contacts: tuple[str, ...] = ()  # movable objects the arm came into contact with before
+    # the edge began (not those it was already touching when the transit began and left)
+    transit_hit_fixed: bool = False  # the arm came into contact with a fixed obstacle before the edge began
+    transit_left: tuple[str, ...] = ()  # objects and obstacles the arm was touching as the transit began
 
 
 class Executor(Protocol):
@@ -125,13 +127,19 @@ class SimulatedRealWorld:
         transit = action.transit_steps * round(CONTROL_DT / m.opt.timestep)  # physics steps before the edge
         touched: set[str] = set()
         hit_fixed: set[str] = set()
+        # a transit "touches" what it comes into contact with: contacts the arm is already in
+        # when it begins (the last edge ended against an object or the table) and leaves are
+        # not counted; one it enters again after leaving is
+        prev_objects, prev_fixed = self._touching()
+        left = prev_objects | prev_fixed
         for i, u in enumerate(controls(action, m.opt.timestep, self.settle)):
             d.ctrl[:] = u
             mujoco.mj_step(m, d)
-            if i < transit and d.ncon:
-                objects, fixed = self._touching()
-                touched |= objects
-                hit_fixed |= fixed
+            if i < transit:
+                objects, fixed = self._touching() if d.ncon else (set(), set())
+                touched |= objects - prev_objects
+                hit_fixed |= fixed - prev_fixed
+                prev_objects, prev_fixed = objects, fixed
             if self.on_step is not None:
                 self.on_step(m, d)
         self.time += action.duration + self.settle
@@ -140,6 +148,7 @@ class SimulatedRealWorld:
         names = [b.name for b in self.scene.scenario.movable]
         obs.transit_contacts = tuple(n for n in names if n in touched)
         obs.transit_hit_fixed = bool(hit_fixed)
+        obs.transit_left = tuple(sorted(left))
         return obs
 
     def truth(self) -> np.ndarray:

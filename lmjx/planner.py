@@ -50,7 +50,7 @@ TARGET_LOST = 10.0  # [m] when the target leaves the table
 @dataclass(frozen=True)
 class PlannerConfig:
     asm: str = "greedy"
-    max_actions: int = 30
+    max_actions: int | None = None  # the action budget; None: the task set's (`Scenario.budget`)
     max_planning_s: float = 600.0
     greedy_candidates: int = 32
     lazy_tries: int = 32
@@ -70,7 +70,7 @@ class PlannerConfig:
     def validate(self) -> None:
         if self.asm not in ASMS:
             raise ConfigError(f"unknown action selection mechanism '{self.asm}'; use random, lazy or greedy")
-        if self.max_actions < 1 or self.greedy_candidates < 1 or self.lazy_tries < 1:
+        if (self.max_actions is not None and self.max_actions < 1) or self.greedy_candidates < 1 or self.lazy_tries < 1:
             raise ConfigError("max_actions, greedy_candidates and lazy_tries must be positive")
         if self.greedy_fraction is not None and not 0.0 < self.greedy_fraction <= 1.0:
             raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
@@ -110,6 +110,7 @@ class StepRecord:
     target_moved_m: float = float("nan")
     transit_contacts: tuple[str, ...] = ()
     transit_hit_fixed: bool = False
+    transit_left: tuple[str, ...] = ()
 
     def summary(self) -> dict:
         return {
@@ -121,6 +122,7 @@ class StepRecord:
             "target_moved_m": None if np.isnan(self.target_moved_m) else round(self.target_moved_m, 4),
             "transit_contacts": list(self.transit_contacts),
             "transit_hit_fixed": self.transit_hit_fixed,
+            "transit_left": list(self.transit_left),
         }
 
 
@@ -385,7 +387,7 @@ class Planner:
         steps: list[StepRecord] = []
         planning = 0.0
         reason = "budget"
-        for _ in range(cfg.max_actions):
+        for _ in range(cfg.max_actions or self.sc.budget):
             if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"
                 break
@@ -413,6 +415,7 @@ class Planner:
             rec.target_moved_m = obs.target_moved_m
             rec.transit_contacts = obs.transit_contacts
             rec.transit_hit_fixed = obs.transit_hit_fixed
+            rec.transit_left = obs.transit_left
             steps.append(rec)
             if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
                 reason = "target off the table"

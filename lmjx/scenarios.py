@@ -6,6 +6,18 @@ region.
   1. the target and 3 movable obstacles that crowd it;
   2. a fixed tunnel partitioning the table: the target must pass through it;
   3. the target and 11 movable obstacles (many object-object interactions).
+Two task sets share these layouts (`TASK_SETS`):
+  * "hard": the goals as first built here, 22-28 cm from the target, 12 cm square, a
+    budget of 30 actions: tasks where choosing actions by simulation matters;
+  * "paper": the goal regions, distances and budget chosen by calibration to reproduce the
+    paper's reported outcomes (its Random ASM completes a large share of the tasks, some in
+    one action), with Random only, on calibration seeds the evaluation never uses
+    (`PAPER_TASKS`; the procedure and its runs: docs/EVALUATION.md, benchmarks/calibrate_tasks.py).
+    In scenarios 1 and 3 the goal moves toward the target along the hard task's direction;
+    in scenario 2 the task is reversed: the target starts where the hard task's goal is, on
+    the robot's side, and is pushed through the tunnel to a goal on the far side (pulling
+    it back, the hard task, leaves an arm that never touches the tunnel 2-3 feasible actions
+    on a 100,000-edge map; pushing it away, 16-20: docs/EVALUATION.md).
 The layouts are the Panda's; `scenario(n, scale)` scales every position on the table (and the
 tunnel's length) about the robot's base by the robot's `task_scale`, so that the same three
 scenarios sit at the same place in the reach of an arm of another size (objects keep their
@@ -61,6 +73,8 @@ class Scenario:
     goal_half: tuple[float, float] = (0.06, 0.06)
     jitter: float = 0.02  # [m]
     yaw_jitter: float = 0.26  # [rad]
+    tasks: str = "hard"  # the task set it belongs to
+    budget: int = 30  # the task set's action budget (a planner's default max_actions)
 
     @property
     def movable(self) -> tuple[Box, ...]:
@@ -152,16 +166,61 @@ def _scenario3() -> Scenario:
 
 
 SCENARIOS = {1: _scenario1, 2: _scenario2, 3: _scenario3}
+TASK_SETS = ("paper", "hard")
 
 
-def scenario(number: int, scale: float = 1.0) -> Scenario:
-    """Scenario `number` (1, 2, 3) with its table positions scaled by `scale` about the robot's
-    base (a robot's `profile.task_scale`; 1 for the Panda)."""
+@dataclass(frozen=True)
+class PaperTask:
+    """A scenario's task in the paper set: the target's nominal start `distance` metres from
+    the goal's centre (along the hard task's direction), a goal square of half size `half`."""
+
+    distance: float  # [m]
+    half: float  # [m]
+
+
+# Chosen by calibration (Random only, calibration seeds; docs/EVALUATION.md, "The paper's
+# task set"); never tuned on the evaluation's seeds.
+PAPER_TASKS = {1: PaperTask(0.12, 0.06), 2: PaperTask(0.16, 0.06), 3: PaperTask(0.12, 0.06)}  # placeholder until calibrated
+PAPER_BUDGET = 30
+
+
+def paper_variant(sc: Scenario, task: PaperTask, budget: int) -> Scenario:
+    """A hard scenario turned into a paper-set task, on the line from the hard task's target to
+    its goal: the goal moved to `task.distance` from the target; in the tunnel, the task
+    reversed (the target starts where the hard task's goal is, on the robot's side, and is
+    pushed through the tunnel to a goal `task.distance` away on the far side)."""
+    t0 = np.array([sc.target.x, sc.target.y])
+    g0 = np.array(sc.goal_center)
+    u = (g0 - t0) / np.linalg.norm(g0 - t0)
+    size = f"a {2 * task.half * 100:.0f} cm square"
+    target = sc.target
+    if sc.fixed:
+        target = replace(sc.target, x=float(g0[0]), y=float(g0[1]))
+        x, y = g0 - task.distance * u
+        desc = (f"The tunnel of the hard task, crossed the other way: the target starts on the robot's side; the "
+                f"goal region ({size}, centred {task.distance * 100:.0f} cm from the target) lies past the tunnel "
+                "on the far side.")  # fmt: skip
+    else:
+        x, y = t0 + task.distance * u
+        desc = (f"The objects of the hard task; the goal region ({size}) is centred {task.distance * 100:.0f} cm from "
+                "the target, toward the robot's centre line.")  # fmt: skip
+    return replace(sc, target=target, goal_center=(float(x), float(y)), goal_half=(task.half, task.half),
+                   tasks="paper", budget=budget, description=desc)  # fmt: skip
+
+
+def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
+    """Scenario `number` (1, 2, 3) of the task set `tasks` ("paper" or "hard"), with its table
+    positions scaled by `scale` about the robot's base (a robot's `profile.task_scale`; 1
+    for the Panda)."""
     if number not in SCENARIOS:
         raise ConfigError(f"unknown scenario {number}; the scenarios are 1, 2 and 3")
+    if tasks not in TASK_SETS:
+        raise ConfigError(f"unknown task set '{tasks}'; use paper or hard")
     if not (math.isfinite(scale) and 0.2 <= scale <= 5.0):
         raise ConfigError(f"scenario scale {scale:g} is out of range (0.2 to 5)")
     sc = SCENARIOS[number]()
+    if tasks == "paper":
+        sc = paper_variant(sc, PAPER_TASKS[number], PAPER_BUDGET)
     if scale == 1.0:
         return sc
 

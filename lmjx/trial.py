@@ -50,11 +50,11 @@ def resolve_simulator(choice: str) -> tuple[str, str]:
     return choice, "asked for"
 
 
-def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu") -> Simulator:
+def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu", tasks: str = "paper") -> Simulator:
     """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
     or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
     whole scene).  `backend` is resolved already (see `resolve_simulator`)."""
-    sc = scenario(scenario_number, robot.profile.task_scale)
+    sc = scenario(scenario_number, robot.profile.task_scale, tasks)
     if backend == "gpu":
         from .simulate_gpu import GpuSimulator
 
@@ -74,12 +74,14 @@ def setup_trial(
     seed: int,
     simulator: Simulator | None = None,
     transits: TransitPlanner | None = None,
+    tasks: str = "paper",
 ) -> TrialSetup:
-    """A trial ready to run.  `transits` may be shared by the trials of one map (it keeps
-    what it learned about transits through the park pose)."""
-    sc = scenario(scenario_number, robot.profile.task_scale)
+    """A trial ready to run, on scenario `scenario_number` of the task set `tasks`.
+    `transits` may be shared by the trials of one map (it keeps what it learned about
+    transits through the park pose)."""
+    sc = scenario(scenario_number, robot.profile.task_scale, tasks)
     assert map_file.reach is not None and map_file.edges is not None
-    sim = simulator or (make_simulator(robot, scenario_number) if config.asm != "random" else None)
+    sim = simulator or (make_simulator(robot, scenario_number, tasks=tasks) if config.asm != "random" else None)
     planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config, transits)
     return TrialSetup(
         planner, sample_layout(sc, seed), SimulatedRealWorld(robot, seed), seed * 7 + ASMS.index(config.asm)

@@ -62,7 +62,7 @@ def trial_figures(path: str) -> dict:
             asm=asm, max_actions=TRIAL["max_actions"], greedy_candidates=TRIAL["greedy_candidates"],
             lazy_tries=TRIAL["lazy_tries"],
         )  # fmt: skip
-        res = run_trial(setup_trial(robot, m, TRIAL["scenario"], cfg, seed=TRIAL["seed"]))
+        res = run_trial(setup_trial(robot, m, TRIAL["scenario"], cfg, seed=TRIAL["seed"], tasks="hard"))
         out[asm] = {
             "success": bool(res.success),
             "actions": int(res.actions),

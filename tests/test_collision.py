@@ -200,7 +200,7 @@ def test_scene_box_clearance_matches_mj_geom_distance(robot, number):
     from lmjx.scenarios import sample_layout, scenario
     from lmjx.scene import build_scene, object_qpos, read_objects, set_state
 
-    sc = scenario(number)
+    sc = scenario(number, tasks="hard")
     scene = build_scene(robot, sc)
     m, d = scene.model, mujoco.MjData(scene.model)
     q = random_configs(robot, 2000, 11)

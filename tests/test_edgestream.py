@@ -236,7 +236,7 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, plan_map):
 
     whole, lazy = load_map(plan_map, robot, lazy=False), load_map(plan_map, robot, lazy=True)
     assert isinstance(whole.edges.q, np.ndarray) and isinstance(lazy.edges.q, StateReader) and lazy.edges.q.fast
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     scene = build_scene(robot, sc)
     sim = CpuSimulator(scene)
     cfg = PlannerConfig(asm="greedy", greedy_candidates=6)

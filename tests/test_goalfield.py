@@ -11,14 +11,14 @@ LO, HI = np.array([-0.5, -1.1]), np.array([1.2, 1.1])
 
 
 def test_open_table_is_euclidean():
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     f = GoalField(sc, LO, HI)
     pts = np.random.default_rng(0).uniform([0.1, -0.4], [0.8, 0.6], (200, 2))
     np.testing.assert_allclose(f(pts), np.hypot(*(pts - sc.goal_center).T), atol=1e-12)
 
 
 def test_path_around_the_tunnel_wall():
-    sc = scenario(2)
+    sc = scenario(2, tasks="hard")
     f = GoalField(sc, LO, HI)
     wall = next(b for b in sc.fixed if b.name == "wall_near")
     g = math.hypot(sc.target.half[0], sc.target.half[1])  # the cube's centre keeps this far
@@ -35,7 +35,7 @@ def test_path_around_the_tunnel_wall():
 
 
 def test_inside_a_wall_costs_more_than_beside_it():
-    sc = scenario(2)
+    sc = scenario(2, tasks="hard")
     f = GoalField(sc, LO, HI)
     wall = next(b for b in sc.fixed if b.name == "wall_far")
     inside = np.array([wall.x, wall.y])

@@ -26,7 +26,7 @@ from lmjx.trial import run_trial, setup_trial
 
 @pytest.mark.parametrize("n", [1, 2, 3])
 def test_layouts_are_seeded_and_apart(robot, n):
-    sc = scenario(n)
+    sc = scenario(n, tasks="hard")
     a, b, c = sample_layout(sc, 5), sample_layout(sc, 5), sample_layout(sc, 6)
     assert np.array_equal(a.poses, b.poses) and not np.array_equal(a.poses, c.poses)
     assert len(a.poses) == {1: 4, 2: 1, 3: 12}[n]
@@ -47,7 +47,7 @@ def test_real_world_differs_from_the_planners_within_documented_ranges(robot):
     p = real_physics(robot, 4, rng)
     assert all(0.7 <= f <= 1.3 for f in p.friction_scale) and all(0.8 <= m <= 1.25 for m in p.mass_scale)
     assert -0.003 <= p.robot_radius_offset <= 0.003 and p.servo_force == tuple(robot.tau_max)
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     lay = sample_layout(sc, 1)
     w1, w2 = SimulatedRealWorld(robot, 1), SimulatedRealWorld(robot, 1)
     q = park_pose(robot, parse_failure("case2", robot))
@@ -73,7 +73,7 @@ def test_controls_follow_the_action(robot, small_map):
     np.testing.assert_allclose(u[round(CONTROL_DT / 0.005) - 1, :7], a.q[0], atol=1e-12)
     np.testing.assert_allclose(u[-1, :7], a.q[-1])
     # the planner's servos play the action back closely (objects moved out of the way)
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     s = build_scene(robot, sc)
     d = mujoco.MjData(s.model)
     far = np.array([[1.0, -0.9 + 0.1 * i, 0.0] for i in range(len(sc.movable))])
@@ -92,7 +92,7 @@ def test_batched_simulation_equals_one_by_one(robot, small_map):
     m = load_map(small_map)
     tp = TransitPlanner(robot, m.failure)
     acts = [a for a in (tp.action(m.edges, e, tp.park) for e in range(0, 60, 3)) if a is not None][:6]
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     s = build_scene(robot, sc)
     sim = CpuSimulator(s)
     objs = object_qpos(s, sample_layout(sc, 2).poses)
@@ -124,8 +124,8 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 def test_trials_run_and_repeat(robot, plan_map, asm):
     m = load_map(plan_map)
     cfg = PlannerConfig(asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4)
-    a = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
-    b = run_trial(setup_trial(robot, m, 1, cfg, seed=3))
+    a = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
+    b = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
     assert a.summary() | {"planning_s": 0} == b.summary() | {"planning_s": 0}
     assert 1 <= a.actions <= 2 and a.execution_s > 0
     # the Panda plans as it did when the golden trials were written (tests/golden.py)
@@ -147,7 +147,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
             "--max-actions", "2", "--json").ok()  # fmt: skip
     out = json.loads(r.stdout)
     assert {"success", "actions", "planning_s", "execution_s", "end", "asm_settings", "steps"} <= set(out)
-    assert out["asm_settings"]["futile_filter"] is True
+    assert out["asm_settings"]["futile_filter"] is True and out["tasks"] == "paper"
     paper = json.loads(cli("plan", "--map", small_map, "--scenario", "2", "--asm", "lazy", "--asm-settings", "paper",
                            "--max-actions", "1", "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
@@ -173,14 +173,15 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert len(records) == 4
     assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s",
                                "end", "asm_settings", "steps"}  # fmt: skip
-    assert all(r["end"] in ENDS for r in records)
+    assert all(r["end"] in ENDS for r in records) and {r["tasks"] for r in records} == {"paper"}
     for step in (x for r in records for x in r["steps"]):
-        assert {"target_moved_m", "transit_contacts", "transit_hit_fixed"} <= set(step)
+        assert {"target_moved_m", "transit_contacts", "transit_hit_fixed", "transit_left"} <= set(step)
         assert not step["transit_hit_fixed"]
     assert "How the trials ended" in (ev / "report.md").read_text()
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
     r = cli(*args)  # resumes: nothing left to do
     assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
+    cli(*args, "--tasks", "hard").one_line_error("task set 'paper', not 'hard'")  # one task set per folder
     # the same trials face the same layouts whatever the ASM
     assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
         {x["seed"] for x in records if x["asm"] == "greedy"}
@@ -233,11 +234,11 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     from lmjx.trial import make_simulator
 
     m = load_map(plan_map)
-    sim = make_simulator(robot, 1, "cpu")
+    sim = make_simulator(robot, 1, "cpu", "hard")
     cfgs = [PlannerConfig(asm=a, max_actions=1, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
                                                                                                "greedy")]  # fmt: skip
-    alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim)).summary() for c in cfgs]
-    setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim) for c in cfgs]
+    alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard")).summary() for c in cfgs]
+    setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard") for c in cfgs]
     together: dict[int, dict] = {}
     run_lockstep(
         [(s.planner.trial(s.world, s.layout, s.planner_seed), s.world) for s in setups],
@@ -260,7 +261,7 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
     from lmjx.planner import Planner
 
     m = load_map(plan_map)
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     scene = build_scene(robot, sc)
     cfg = PlannerConfig(asm="lazy", lazy_tries=4)
     one = Planner(robot, m.failure, m.reach, m.edges, sc, CpuSimulator(scene), cfg)
@@ -305,7 +306,7 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     from lmjx.planner import edges_over_target
 
     m = load_map(plan_map)
-    sc = scenario(number)
+    sc = scenario(number, tasks="hard")
     layout = sample_layout(sc, 5)
     scene = build_scene(robot, sc)
     model, d = scene.model, mujoco.MjData(scene.model)
@@ -367,7 +368,7 @@ def paired_decisions(robot, small_map, greedy_pick=None) -> list[tuple[float, fl
     transits = TransitPlanner(robot, m.failure)
     out = []
     for number in (1,):
-        sc = scenario(number)
+        sc = scenario(number, tasks="hard")
         sim = CpuSimulator(build_scene(robot, sc))
         planners = {}
         for asm in ("greedy", "random"):

@@ -16,7 +16,7 @@ from lmjx.atlas import AtlasConfig, entries, expected_maps
 from lmjx.errors import ConfigError, FailureSpecError, MapFileError
 from lmjx.failure import parse_failure
 from lmjx.robot import ROBOTS, RobotError, check_robot, load_robot, resolve_robot
-from lmjx.scenarios import scenario
+from lmjx.scenarios import PAPER_BUDGET, PAPER_TASKS, in_goal, sample_layout, scenario
 
 UR5E = ROBOTS["ur5e"]
 
@@ -139,7 +139,7 @@ def test_ur5e_ready_pose_and_scene_hold_still():
     d.qpos[:] = q
     mujoco.mj_forward(ur.mj, d)
     assert d.ncon == 0
-    sc = scenario(3, ur.profile.task_scale)
+    sc = scenario(3, ur.profile.task_scale, "hard")
     s = build_scene(ur, sc)
     sd = mujoco.MjData(s.model)
     start = object_qpos(s, sample_layout(sc, 0).poses)
@@ -155,14 +155,38 @@ def test_ur5e_ready_pose_and_scene_hold_still():
 
 
 def test_scenarios_scale_about_the_base():
-    assert scenario(2, 1.0) == scenario(2)
-    a, b = scenario(2), scenario(2, 1.2)
+    assert scenario(2, 1.0, "hard") == scenario(2, tasks="hard")
+    a, b = scenario(2, tasks="hard"), scenario(2, 1.2, "hard")
     assert b.target.x == pytest.approx(1.2 * a.target.x) and b.goal_center[1] == pytest.approx(1.2 * a.goal_center[1])
     assert b.target.half == a.target.half  # objects keep their size
     for fa, fb in zip(a.fixed, b.fixed, strict=True):  # the tunnel's walls grow along their length only
         assert fb.half[0] == pytest.approx(1.2 * fa.half[0]) and fb.half[1:] == fa.half[1:]
     with pytest.raises(ConfigError):
         scenario(1, 0.0)
+    with pytest.raises(ConfigError, match="task set"):
+        scenario(1, tasks="easy")
+
+
+def test_paper_tasks_keep_the_hard_layouts_and_lines():
+    """The paper set moves only the goal (scenarios 1, 3) or reverses the tunnel's task, on the
+    line of the hard task, at the calibrated distance; no layout starts in its goal."""
+    for n, task in PAPER_TASKS.items():
+        hard, paper = scenario(n, tasks="hard"), scenario(n, tasks="paper")
+        assert (paper.tasks, paper.budget, hard.budget) == ("paper", PAPER_BUDGET, 30)
+        assert paper.obstacles == hard.obstacles and paper.fixed == hard.fixed
+        start, goal = np.array([paper.target.x, paper.target.y]), np.array(paper.goal_center)
+        assert np.linalg.norm(goal - start) == pytest.approx(task.distance)
+        line = np.array(hard.goal_center) - [hard.target.x, hard.target.y]
+        v = goal - start
+        assert abs(line[0] * v[1] - line[1] * v[0]) < 1e-9  # on the hard task's line
+        assert paper.goal_half == (task.half, task.half)
+        for seed in range(20):
+            assert not in_goal(paper, sample_layout(paper, seed).poses[0, :2])
+        if hard.fixed:  # reversed: from the hard task's goal, through the tunnel, wholly past the wall
+            assert (paper.target.x, paper.target.y) == hard.goal_center
+            assert goal[1] - task.half >= max(f.y + f.half[1] for f in hard.fixed)
+        else:
+            assert paper.target == hard.target
 
 
 def test_atlas_of_the_ur5e_has_675_maps():

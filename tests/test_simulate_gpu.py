@@ -38,7 +38,7 @@ def test_c_mujoco_collides_box_pairs_the_same_with_or_without_native_ccd(robot):
     primitive box-box routine; C MuJoCo uses that routine either way (so the flag changes
     nothing in the reference): the same contacts, in states where boxes touch each other,
     the table and the arm."""
-    sc = scenario(3)
+    sc = scenario(3, tasks="hard")
     scene = build_scene(robot, sc)
     m = scene.model
     d = mujoco.MjData(m)
@@ -64,7 +64,7 @@ def test_c_mujoco_collides_box_pairs_the_same_with_or_without_native_ccd(robot):
 def test_fused_scene_has_the_same_dynamics(robot):
     """`fuse_static` (the GPU simulator's scene) merges jointless bodies into their parents:
     a shallower tree with the same state layout, mass matrix, bias forces and contacts."""
-    sc = scenario(1)
+    sc = scenario(1, tasks="hard")
     a, b = build_scene(robot, sc), build_scene(robot, sc, fuse_static=True)
     assert b.model.nbody < a.model.nbody and a.model.nq == b.model.nq
     assert np.array_equal(a.robot_qpos, b.robot_qpos) and np.array_equal(a.obj_qpos, b.obj_qpos)
@@ -207,8 +207,8 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     report = measure(
         robot,
         decisions,
-        {s: make_simulator(robot, s, "gpu") for s in (1, 2, 3)},
-        {s: make_simulator(robot, s, "cpu") for s in (1, 2, 3)},
+        {s: make_simulator(robot, s, "gpu", "hard") for s in (1, 2, 3)},
+        {s: make_simulator(robot, s, "cpu", "hard") for s in (1, 2, 3)},
     )
     report |= {"map_seed": MAP_SEED, "first_seed": FIRST_SEED}
     if "LMJX_TEST_REPORT" in os.environ:
