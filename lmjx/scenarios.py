@@ -13,7 +13,8 @@ Two task sets share these layouts (`TASK_SETS`):
     paper's reported outcomes (its Random ASM completes a large share of the tasks, some in
     one action), with Random only, on calibration seeds the evaluation never uses
     (`PAPER_TASKS`; the procedure and its runs: docs/EVALUATION.md, benchmarks/calibrate_tasks.py).
-    In scenarios 1 and 3 the goal moves toward the target along the hard task's direction;
+    In scenarios 1 and 3 the goal's direction from the target is calibrated too (the hard
+    tasks' lies against the way pushes from this arm tend to move the target);
     in scenario 2 the task is reversed: the target starts where the hard task's goal is, on
     the robot's side, and is pushed through the tunnel to a goal on the far side (pulling
     it back, the hard task, leaves an arm that never touches the tunnel 2-3 feasible actions
@@ -171,41 +172,40 @@ TASK_SETS = ("paper", "hard")
 
 @dataclass(frozen=True)
 class PaperTask:
-    """A scenario's task in the paper set: the target's nominal start `distance` metres from
-    the goal's centre (along the hard task's direction), a goal square of half size `half`."""
+    """A scenario's task in the paper set: a goal square of half size `half`, centred `distance`
+    metres from the target's nominal start in the direction `angle` (degrees on the table,
+    counter-clockwise from the robot's x axis)."""
 
     distance: float  # [m]
     half: float  # [m]
+    angle: float  # [deg]
 
 
 # Chosen by calibration (Random only, calibration seeds; docs/EVALUATION.md, "The paper's
-# task set"); never tuned on the evaluation's seeds.
-PAPER_TASKS = {1: PaperTask(0.12, 0.06), 2: PaperTask(0.16, 0.06), 3: PaperTask(0.12, 0.06)}  # placeholder until calibrated
-PAPER_BUDGET = 30
+# task set"; benchmarks/calibrate_tasks.py); never tuned on the evaluation's seeds.
+PAPER_TASKS = {1: PaperTask(0.13, 0.10, 90.0), 2: PaperTask(0.19, 0.10, 90.0), 3: PaperTask(0.13, 0.10, 0.0)}
+PAPER_BUDGET = 15
 
 
 def paper_variant(sc: Scenario, task: PaperTask, budget: int) -> Scenario:
-    """A hard scenario turned into a paper-set task, on the line from the hard task's target to
-    its goal: the goal moved to `task.distance` from the target; in the tunnel, the task
-    reversed (the target starts where the hard task's goal is, on the robot's side, and is
-    pushed through the tunnel to a goal `task.distance` away on the far side)."""
-    t0 = np.array([sc.target.x, sc.target.y])
-    g0 = np.array(sc.goal_center)
-    u = (g0 - t0) / np.linalg.norm(g0 - t0)
-    size = f"a {2 * task.half * 100:.0f} cm square"
+    """A hard scenario turned into a paper-set task: the same objects, the goal `task.distance`
+    from the target's start in the direction `task.angle`; in the tunnel the target starts
+    where the hard task's goal is, on the robot's side, and is pushed through the tunnel."""
     target = sc.target
     if sc.fixed:
-        target = replace(sc.target, x=float(g0[0]), y=float(g0[1]))
-        x, y = g0 - task.distance * u
+        target = replace(sc.target, x=float(sc.goal_center[0]), y=float(sc.goal_center[1]))
+    a = math.radians(task.angle)
+    x, y = target.x + task.distance * math.cos(a), target.y + task.distance * math.sin(a)
+    size = f"a {2 * task.half * 100:.0f} cm square"
+    if sc.fixed:
         desc = (f"The tunnel of the hard task, crossed the other way: the target starts on the robot's side; the "
                 f"goal region ({size}, centred {task.distance * 100:.0f} cm from the target) lies past the tunnel "
                 "on the far side.")  # fmt: skip
     else:
-        x, y = t0 + task.distance * u
         desc = (f"The objects of the hard task; the goal region ({size}) is centred {task.distance * 100:.0f} cm from "
-                "the target, toward the robot's centre line.")  # fmt: skip
-    return replace(sc, target=target, goal_center=(float(x), float(y)), goal_half=(task.half, task.half),
-                   tasks="paper", budget=budget, description=desc)  # fmt: skip
+                f"the target at {task.angle:.0f} deg.")  # fmt: skip
+    return replace(sc, target=target, goal_center=(x, y), goal_half=(task.half, task.half), tasks="paper",
+                   budget=budget, description=desc)  # fmt: skip
 
 
 def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:

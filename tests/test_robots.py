@@ -167,18 +167,16 @@ def test_scenarios_scale_about_the_base():
         scenario(1, tasks="easy")
 
 
-def test_paper_tasks_keep_the_hard_layouts_and_lines():
-    """The paper set moves only the goal (scenarios 1, 3) or reverses the tunnel's task, on the
-    line of the hard task, at the calibrated distance; no layout starts in its goal."""
+def test_paper_tasks_keep_the_hard_layouts():
+    """The paper set keeps the hard layouts (the tunnel's task reversed), puts the goal at the
+    calibrated distance and direction; no layout starts in its goal."""
     for n, task in PAPER_TASKS.items():
         hard, paper = scenario(n, tasks="hard"), scenario(n, tasks="paper")
         assert (paper.tasks, paper.budget, hard.budget) == ("paper", PAPER_BUDGET, 30)
         assert paper.obstacles == hard.obstacles and paper.fixed == hard.fixed
         start, goal = np.array([paper.target.x, paper.target.y]), np.array(paper.goal_center)
-        assert np.linalg.norm(goal - start) == pytest.approx(task.distance)
-        line = np.array(hard.goal_center) - [hard.target.x, hard.target.y]
-        v = goal - start
-        assert abs(line[0] * v[1] - line[1] * v[0]) < 1e-9  # on the hard task's line
+        a = np.radians(task.angle)
+        assert goal - start == pytest.approx(task.distance * np.array([np.cos(a), np.sin(a)]))
         assert paper.goal_half == (task.half, task.half)
         for seed in range(20):
             assert not in_goal(paper, sample_layout(paper, seed).poses[0, :2])
