@@ -97,7 +97,8 @@ for step in $steps; do
       }
       ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE
         for t in ${TASKS:-paper hard}; do run_eval gpu $t; done ) &
-      ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS; for t in ${TASKS:-paper hard}; do run_eval cpu $t; done ) &
+      [ "${SIMS:-gpu cpu}" = gpu ] || ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS
+        for t in ${TASKS:-paper hard}; do run_eval cpu $t; done ) &
       wait
       for d in "$OUT"/ev_*; do python3 -c "import json,sys; r=json.load(open('$d/results.json')); print('$d', len(r), 'trials')" 2>/dev/null; done ;;
     evalgpu)
