@@ -830,7 +830,8 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
         sc = scenario(n, robot.profile.task_scale, args.tasks)
         path = out / f"scenario{n}.png"
         scenario_picture(robot, sc, sample_layout(sc, args.seed), q, path, with_render=problem is None)
-        print(f"scenario {n} ({args.tasks} tasks, {sc.budget} actions): {sc.title}\n  {sc.description}\n  picture: {path}")
+        head = f"scenario {n} ({args.tasks} tasks, {sc.budget} actions): {sc.title}"
+        print(f"{head}\n  {sc.description}\n  picture: {path}")
     return 0
 
 

@@ -181,7 +181,8 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
     r = cli(*args)  # resumes: nothing left to do
     assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
-    cli(*args, "--tasks", "hard").one_line_error("task set 'paper', not 'hard'")  # one task set per folder
+    # one task set per folder
+    cli(*args, "--asms", "random", "--tasks", "hard").one_line_error("task set 'paper', not 'hard'")
     # the same trials face the same layouts whatever the ASM
     assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
         {x["seed"] for x in records if x["asm"] == "greedy"}
@@ -199,7 +200,7 @@ def test_scenarios_command_draws_without_opengl(tmp_path):
     for n in (1, 2, 3):
         data = (tmp_path / f"scenario{n}.png").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
-        assert f"scenario {n}:" in r.stdout
+        assert f"scenario {n} (paper tasks" in r.stdout
     bad = cli("scenarios", "--out", "/proc/nope")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
 
