@@ -49,7 +49,7 @@ from lmjx.lockstep import run_lockstep
 from lmjx.mapfile import load_map
 from lmjx.planner import Planner, PlannerConfig
 from lmjx.robot import load_robot
-from lmjx.scenarios import SCENARIOS, sample_layout, scenario
+from lmjx.scenarios import SCENARIOS, PaperTask, Scenario, in_goal, paper_variant, sample_layout, scenario
 
 CAL_BASE = 7  # calibration trials' seed base (the evaluation's is 0)
 GOAL_MARGIN = PlannerConfig().goal_margin
@@ -100,19 +100,15 @@ def run_trials(robot, m, number: int, trials: int, budget: int) -> list[dict]:
     return [out[i] for i in range(trials)]
 
 
-def outcome(track: list, goal: tuple[float, float], half: float, budget: int) -> tuple[bool, int]:
-    """(success, actions) of a trial with this goal and budget, as `Planner.trial` ends it."""
-
-    def inside(xy, margin):
-        return abs(xy[0] - goal[0]) <= half - margin and abs(xy[1] - goal[1]) <= half - margin
-
+def outcome(track: list, task: Scenario, budget: int) -> tuple[bool, int]:
+    """(success, actions) of a trial on `task` with this budget, as `Planner.trial` ends it."""
     last = min(budget, len(track) - 1)
     for k in range(last + 1):
         obs, true, z = track[k]
-        if k < budget and inside(obs, GOAL_MARGIN):
-            return bool(inside(true, 0.0) and z > -0.02), k
+        if k < budget and in_goal(task, np.array(obs), GOAL_MARGIN):
+            return in_goal(task, np.array(true)) and z > -0.02, k
     obs, true, z = track[last]
-    return bool(inside(true, 0.0) and z > -0.02), last
+    return in_goal(task, np.array(true)) and z > -0.02, last
 
 
 def grid(runs: dict) -> list[dict]:
@@ -122,14 +118,13 @@ def grid(runs: dict) -> list[dict]:
     rows = []
     for (f, s), trials in runs.items():
         hard = scenario(s, 1.0, "hard")
-        start = np.array(hard.goal_center if hard.fixed else (hard.target.x, hard.target.y))
         walls = [b.y + b.half[1] for b in hard.fixed]
         for a, d, h, b in itertools.product(ANGLES if not walls else (90,), DISTANCES, HALVES, BUDGETS):
-            u = np.array([np.cos(np.radians(a)), np.sin(np.radians(a))])
-            goal = start + d * u
-            if np.max(np.abs(goal - start)) < h + 0.03 or (walls and goal[1] - h < max(walls)):
+            task = paper_variant(hard, PaperTask(float(d), h, float(a)), b)  # the task the evaluation would run
+            offset = np.array(task.goal_center) - (task.target.x, task.target.y)
+            if np.max(np.abs(offset)) < h + 0.03 or (walls and task.goal_center[1] - h < max(walls)):
                 continue
-            res = [outcome(tr["track"], tuple(goal), h, b) for tr in trials]
+            res = [outcome(tr["track"], task, b) for tr in trials]
             rows.append({"failure": f, "scenario": s, "angle": a, "distance": float(d), "half": h, "budget": b,
                          "trials": len(res), "successes": int(sum(ok for ok, _ in res)),
                          "one_action": int(sum(ok and n == 1 for ok, n in res)),

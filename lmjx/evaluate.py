@@ -24,7 +24,7 @@ from .mapfile import MapFile, load_map
 from .planner import ASMS, PlannerConfig, TrialResult
 from .progress import Progress
 from .robot import Robot
-from .scenarios import TASK_SETS
+from .scenarios import TASK_SETS, scenario
 from .trial import make_simulator, setup_trial
 
 ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
@@ -164,11 +164,8 @@ def evaluate(
 
 def summarize(records: list[dict]) -> list[dict]:
     """Per (failure, scenario, asm): trials, success rate, mean actions/times."""
-    cells: dict[tuple, list[dict]] = {}
-    for r in records:
-        cells.setdefault((r["failure"], r["scenario"], r["asm"]), []).append(r)
     out = []
-    for (f, s, a), rs in sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][1], ASMS.index(kv[0][2]))):
+    for (f, s, a), rs in _cells(records):
         ok = [r for r in rs if r["success"]]
         out.append(
             {
@@ -247,8 +244,6 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
 
 
 def _budget(config: EvalConfig) -> int:
-    from .scenarios import scenario
-
     return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
 
 
