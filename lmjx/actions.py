@@ -14,8 +14,8 @@ an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is no
 is set, an edge whose arm never comes within `TARGET_CONTACT` of the target (the spatial
 index's cells are a coarse first cut; this is the exact test, capsules against the target's
 box at every state of the edge).  A transit may
-leave a contact the arm is already in (the last edge ended against an object), never enter
-one.  Nothing here chooses actions.
+leave a contact the arm is already in (the last edge ended against an object), never go
+deeper into it on the way out, never enter another one.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ CONTROL_DT = 0.02  # the edges' control period [s]
 OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
 FIXED_MARGIN = 0.02  # ... and this far from every fixed obstacle [m]
 TARGET_CONTACT = 0.005  # an edge acts on the target when the arm comes this close to it [m]
+LEAVE_TOLERANCE = 0.001  # a transit leaving a contact may come this much nearer than it began [m]
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
@@ -188,18 +189,28 @@ class TransitPlanner:
         radius = np.asarray(self.robot.arm.cap_r)[None, :, None]
         return (gap - radius).min(axis=1) - np.linalg.norm(self.scene.halves, axis=1)[None]
 
+    def scene_slack(self, qs: np.ndarray) -> np.ndarray:
+        """(n,) how far each configuration keeps outside the scene's margins (the smallest
+        clearance minus its box's margin: negative inside them; +inf without a scene): the
+        exact clearance wherever the lower bound does not settle it (there the bound's)."""
+        if self.scene is None or not len(self.scene.names) or not len(qs):
+            return np.full(len(qs), np.inf)
+        margins = self.scene.margins()
+        if self._host_bounds:
+            bound = self.lower_bounds(qs) - margins
+            out = bound.min(axis=1)
+            doubt = np.any(bound < 0, axis=1)
+        else:
+            out = np.full(len(qs), np.inf)
+            doubt = np.ones(len(qs), bool)
+        if doubt.any():
+            out[doubt] = (self.box_clearance(np.asarray(qs)[doubt]) - margins).min(axis=1)
+        return out
+
     def scene_blocked(self, qs: np.ndarray) -> np.ndarray:
         """(n,) whether each configuration comes within the margins of an object or a fixed
-        obstacle of the scene (all False without a scene): the exact clearance wherever the
-        lower bound does not settle it."""
-        if self.scene is None or not len(self.scene.names) or not len(qs):
-            return np.zeros(len(qs), bool)
-        margins = self.scene.margins()
-        doubt = np.any(self.lower_bounds(qs) < margins, axis=1) if self._host_bounds else np.ones(len(qs), bool)
-        out = np.zeros(len(qs), bool)
-        if doubt.any():
-            out[doubt] = np.any(self.box_clearance(np.asarray(qs)[doubt]) < margins, axis=1)
-        return out
+        obstacle of the scene (all False without a scene)."""
+        return self.scene_slack(qs) < 0
 
     def blocked(self, qs: np.ndarray) -> np.ndarray:
         """(n,) table, arm or scene in the way at each configuration."""
@@ -231,15 +242,20 @@ class TransitPlanner:
         k = np.arange(len(owner)) - first[owner] + 1
         s = k / fine[owner]
         points = q0[owner] + s[:, None] * dq[owner]
-        hits = self.blocked(np.concatenate([q0, points]))
+        both = np.concatenate([q0, points])
+        slack = self.scene_slack(both)
+        hits = self.colliding_batch(both) | (slack < 0)
         start_hit, hits = hits[: len(q0)], hits[len(q0) :]
-        # a check fails when it hits after any free check (the start's included)
+        start_slack, slack = slack[: len(q0)], slack[len(q0) :]
+        # a check fails when it hits after any free check (the start's included), or when,
+        # leaving a contact, it goes deeper into the scene's margins than the start was
         out: list[np.ndarray | None] = []
         for i in range(len(q0)):
             h = hits[first[i] : first[i] + fine[i]]
             free = ~np.concatenate([[start_hit[i]], h[:-1]])
             free_before = np.logical_or.accumulate(free)
-            if h[-1] or np.any(h & free_before):
+            deeper = slack[first[i] : first[i] + fine[i]] < min(float(start_slack[i]), 0.0) - LEAVE_TOLERANCE
+            if h[-1] or np.any(h & free_before) or np.any(deeper):
                 out.append(None)
             else:
                 out.append(q0[i] + np.outer(np.arange(1, n[i] + 1) / n[i], dq[i]))
