@@ -10,12 +10,16 @@ whole scene at its observed poses, `set_scene`; lmjx's box-clearance kernel, bat
 every configuration of every candidate), it retreats first: up to the failure's park pose
 (the arm raised clear of the table), then straight down to the edge's start.  When that
 too is blocked, the action is not offered.  An edge whose start lies within the margins of
-an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is not offered either; nor, once a scene
-is set, an edge whose arm never comes within `TARGET_CONTACT` of the target (the spatial
-index's cells are a coarse first cut; this is the exact test, capsules against the target's
-box at every state of the edge).  A transit may
-leave a contact the arm is already in (the last edge ended against an object), never go
-deeper into it on the way out, never enter another one.  Nothing here chooses actions.
+an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is not offered
+either; nor, once a scene is set, an edge that does not intersect the target: whose arm
+never sweeps `ACT_DEPTH` into the target's box (the spatial index's cells are a coarse first
+cut; this is the exact test, capsules against the target's box at every state of the edge;
+an edge that only grazes the observed box mostly misses the real one, 2 mm off).
+
+After an edge the arm often stands inside the margins (it pushed something): the transits
+of the next action then begin with a `retreat` back along that edge until the arm is clear
+(`came_from`); where there is none, a transit may leave the margins directly, never going
+deeper on the way out, never entering another object's.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
@@ -33,8 +37,11 @@ from .scene import yaw_quat
 CONTROL_DT = 0.02  # the edges' control period [s]
 OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
 FIXED_MARGIN = 0.02  # ... and this far from every fixed obstacle [m]
-TARGET_CONTACT = 0.005  # an edge acts on the target when the arm comes this close to it [m]
+ACT_DEPTH = 0.005  # an edge acts on the target when the arm sweeps this deep into its box [m]
 LEAVE_TOLERANCE = 0.001  # a transit leaving a contact may come this much nearer than it began [m]
+RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outside the scene's margins [m]
+RETREAT_STEP = 0.05  # the retreat's waypoints: at least this far apart (largest joint motion) [rad]
+NEAR_SPEED = 0.25  # inside the margins the arm moves at this fraction of the transits' speed
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
@@ -130,6 +137,7 @@ class TransitPlanner:
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
         self._scene_version = 0
         self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
+        self._retreat: tuple = (None, None)  # (where from, along what, in which scene) -> the retreat
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
@@ -138,7 +146,7 @@ class TransitPlanner:
     def set_scene(self, sc, objects: np.ndarray, acting: bool = True) -> None:
         """The scene transits must keep clear of from now on: scenario `sc` with its movable
         objects observed at `objects` (n, 7), the target first.  `acting`: offer only edges
-        that come within TARGET_CONTACT of the target."""
+        that sweep ACT_DEPTH into the target's box."""
         self.scene = scene_boxes(sc, objects)
         self._scene_version += 1
         self.acting = acting
@@ -189,23 +197,38 @@ class TransitPlanner:
         radius = np.asarray(self.robot.arm.cap_r)[None, :, None]
         return (gap - radius).min(axis=1) - np.linalg.norm(self.scene.halves, axis=1)[None]
 
-    def scene_slack(self, qs: np.ndarray) -> np.ndarray:
-        """(n,) how far each configuration keeps outside the scene's margins (the smallest
-        clearance minus its box's margin: negative inside them; +inf without a scene): the
-        exact clearance wherever the lower bound does not settle it (there the bound's)."""
+    def scene_slacks(self, qs: np.ndarray) -> np.ndarray:
+        """(n, nb) how far each configuration keeps outside each box's margin (its clearance
+        less the margin: negative inside it; (n, 0) without a scene): the exact clearance
+        wherever the lower bound leaves some box in doubt, else the bound's."""
         if self.scene is None or not len(self.scene.names) or not len(qs):
-            return np.full(len(qs), np.inf)
+            return np.zeros((len(qs), 0 if self.scene is None else len(self.scene.names)))
         margins = self.scene.margins()
         if self._host_bounds:
-            bound = self.lower_bounds(qs) - margins
-            out = bound.min(axis=1)
-            doubt = np.any(bound < 0, axis=1)
+            out = self.lower_bounds(qs) - margins
+            doubt = np.any(out < 0, axis=1)
         else:
-            out = np.full(len(qs), np.inf)
+            out = np.zeros((len(qs), len(margins)))
             doubt = np.ones(len(qs), bool)
         if doubt.any():
-            out[doubt] = (self.box_clearance(np.asarray(qs)[doubt]) - margins).min(axis=1)
+            out[doubt] = self.box_clearance(np.asarray(qs)[doubt]) - margins
         return out
+
+    def scene_slack(self, qs: np.ndarray) -> np.ndarray:
+        """(n,) the smallest of `scene_slacks` (+inf without a scene)."""
+        s = self.scene_slacks(qs)
+        return s.min(axis=1) if s.shape[1] else np.full(len(qs), np.inf)
+
+    @staticmethod
+    def _leaves_cleanly(start: np.ndarray, slacks: np.ndarray) -> bool:
+        """Whether a path of checks with `slacks` (m, nb), from a start with `start` (nb,),
+        enters no box's margin and, inside one at the start, never goes LEAVE_TOLERANCE
+        deeper into it nor comes back once out; and ends outside every margin."""
+        if not slacks.shape[1]:
+            return True
+        was_out = np.logical_or.accumulate(np.vstack([start[None] >= 0, slacks[:-1] >= 0]), axis=0)
+        bad = (slacks < 0) & (was_out | (slacks < start[None] - LEAVE_TOLERANCE))
+        return not bad.any() and bool(slacks[-1].min() >= 0)
 
     def scene_blocked(self, qs: np.ndarray) -> np.ndarray:
         """(n,) whether each configuration comes within the margins of an object or a fixed
@@ -216,11 +239,15 @@ class TransitPlanner:
         """(n,) table, arm or scene in the way at each configuration."""
         return self.colliding_batch(qs) | self.scene_blocked(qs)
 
-    def _timing(self, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _timing(self, dq: np.ndarray, slow: np.ndarray | bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Control steps (n,) of straight transits dq (n, nj), and collision checks along them:
-        at least one per control step and one per 0.02 rad of the largest joint motion."""
+        at least one per control step and one per 0.02 rad of the largest joint motion.
+        `slow` (per transit): at NEAR_SPEED of the transits' speed (they begin inside the
+        scene's margins, where the real arm's tracking error at full speed, up to 8 mm on
+        calibration trials, turns near misses into contacts)."""
         span = np.max(np.abs(dq), axis=-1)
-        t = np.maximum(np.max(np.abs(dq) / self.speed, axis=-1), 2 * CONTROL_DT)
+        speed = np.where(np.asarray(slow)[..., None], NEAR_SPEED, 1.0) * self.speed
+        t = np.maximum(np.max(np.abs(dq) / speed, axis=-1), 2 * CONTROL_DT)
         n = np.ceil(t / CONTROL_DT).astype(int)
         fine = np.maximum(n, np.ceil(span / 0.02).astype(int))
         return n, fine
@@ -232,30 +259,35 @@ class TransitPlanner:
     def segments(self, q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray | None]:
         """`segment` for many pairs (n, nj): all their configurations checked in one batch.
         A start already in contact (the real arm pressed against the table or an object) may
-        move out of it, but not back in; the end must be free."""
+        move out of it, but not back in; a start inside an object's margin may leave it,
+        never going deeper, never entering another's (`_leaves_cleanly`, box by box), and
+        does so at NEAR_SPEED; the end must be free."""
         if not len(q0):
             return []
         dq = q1 - q0
-        n, fine = self._timing(dq)
+        start_slack = self.scene_slacks(q0)
+        n, fine = self._timing(dq, start_slack.min(axis=1, initial=np.inf) < 0)
         owner = np.repeat(np.arange(len(q0)), fine)
         first = np.concatenate([[0], np.cumsum(fine)[:-1]])
         k = np.arange(len(owner)) - first[owner] + 1
         s = k / fine[owner]
         points = q0[owner] + s[:, None] * dq[owner]
         both = np.concatenate([q0, points])
-        slack = self.scene_slack(both)
-        hits = self.colliding_batch(both) | (slack < 0)
+        slack = self.scene_slacks(points)
+        hits = self.colliding_batch(both)
         start_hit, hits = hits[: len(q0)], hits[len(q0) :]
-        start_slack, slack = slack[: len(q0)], slack[len(q0) :]
-        # a check fails when it hits after any free check (the start's included), or when,
-        # leaving a contact, it goes deeper into the scene's margins than the start was
+        # a check fails when it hits the table or the arm after any free check (the start's
+        # included), or breaks `_leaves_cleanly` against the scene
         out: list[np.ndarray | None] = []
         for i in range(len(q0)):
             h = hits[first[i] : first[i] + fine[i]]
             free = ~np.concatenate([[start_hit[i]], h[:-1]])
             free_before = np.logical_or.accumulate(free)
-            deeper = slack[first[i] : first[i] + fine[i]] < min(float(start_slack[i]), 0.0) - LEAVE_TOLERANCE
-            if h[-1] or np.any(h & free_before) or np.any(deeper):
+            if (
+                h[-1]
+                or np.any(h & free_before)
+                or not self._leaves_cleanly(start_slack[i], slack[first[i] : first[i] + fine[i]])
+            ):
                 out.append(None)
             else:
                 out.append(q0[i] + np.outer(np.arange(1, n[i] + 1) / n[i], dq[i]))
@@ -265,7 +297,7 @@ class TransitPlanner:
         """(len(edges),) whether each edge, from its start on, keeps FIXED_MARGIN from the
         scene's fixed obstacles at every state (the real arm lags its targets: it may end an
         edge nearer than planned, and its next transit starts there) and, with `acting`,
-        brings the arm within TARGET_CONTACT of the target (the scene's first box) at some
+        sweeps the arm ACT_DEPTH into the target's box (the scene's first box) at some
         state (all True without a scene)."""
         if self.scene is None or not len(edges):
             return np.ones(len(edges), bool)
@@ -279,7 +311,7 @@ class TransitPlanner:
         keep = np.concatenate([[0], np.nonzero(fixed)[0]])
         # (an accelerator computes the exact clearance of everything faster than the host its bound)
         c = self.lower_bounds(q_all) if self._host_bounds else np.full((len(q_all), len(fixed)), -np.inf)
-        doubt = (c[:, 0] <= TARGET_CONTACT) | np.any(c[:, fixed] < FIXED_MARGIN, axis=1)
+        doubt = (c[:, 0] <= -ACT_DEPTH) | np.any(c[:, fixed] < FIXED_MARGIN, axis=1)
         if doubt.any():
             if self._edge_kernel is None:
                 self._edge_kernel = _box_kernel(self.robot, self.scene.padded(EDGE_BOXES, keep))
@@ -297,19 +329,71 @@ class TransitPlanner:
         if self.acting:
             nearest = np.full(len(qs), np.inf)
             np.minimum.at(nearest, owner, c[:, 0])
-            ok &= nearest <= TARGET_CONTACT
+            ok &= nearest <= -ACT_DEPTH
         return ok
 
     def action(self, bundle: Bundle, edge: int, q_now: np.ndarray) -> Action | None:
         acts = self.actions(bundle, np.array([edge]), q_now, 1)
         return acts[0] if acts else None
 
-    def actions(self, bundle: Bundle, edges: np.ndarray, q_now: np.ndarray, want: int) -> list[Action]:
+    def retreat(self, q_now: np.ndarray, came_from: np.ndarray) -> np.ndarray | None:
+        """Joint targets (T, nq) backing the arm out of the scene's margins the way it came:
+        along `came_from` (the states of the edge it just executed) in reverse, from the state
+        nearest `q_now` back to the first that keeps RETREAT_SLACK outside every margin; or
+        None if no state does, or the way back comes nearer to anything than the arm is now
+        (LEAVE_TOLERANCE), or enters the table or the arm itself.
+
+        An edge that pushed an object ends against it, inside the margins a transit keeps;
+        a transit leaving sideways keeps within millimetres of it, which the real arm (its
+        tracking error, the observation's noise) turns into contacts.  Backing out along the
+        edge moves straight away from whatever the edge approached."""
+        path = np.asarray(came_from, np.float64)
+        j = int(np.argmin(np.abs(path - q_now).max(axis=1)))  # where along its way the arm stands
+        back = path[max(j - 1, 0) :: -1]
+        slack = self.scene_slack(back)
+        clear = np.nonzero(slack >= RETREAT_SLACK)[0]
+        if not len(clear):
+            return None
+        back = back[: clear[0] + 1]
+        way = [q_now]
+        for q in back[:-1]:  # waypoints RETREAT_STEP apart, the last one kept
+            if np.abs(q - way[-1]).max() >= RETREAT_STEP:
+                way.append(q)
+        way.append(back[-1])
+        way = np.asarray(way)
+        dq = np.diff(way, axis=0)
+        n, fine = self._timing(dq, True)
+        checks = np.concatenate([way[i] + np.outer(np.arange(1, f + 1) / f, dq[i]) for i, f in enumerate(fine)])
+        both = np.concatenate([q_now[None], checks])
+        slack = self.scene_slacks(both)
+        hits = self.colliding_batch(both)
+        free_before = np.logical_or.accumulate(~hits[:-1])
+        if hits[-1] or np.any(hits[1:] & free_before) or not self._leaves_cleanly(slack[0], slack[1:]):
+            return None
+        return np.concatenate([way[i] + np.outer(np.arange(1, k + 1) / k, dq[i]) for i, k in enumerate(n)])
+
+    def actions(
+        self, bundle: Bundle, edges: np.ndarray, q_now: np.ndarray, want: int, came_from: np.ndarray | None = None
+    ) -> list[Action]:
         """The first `want` feasible actions among `edges`, in their order (fewer if there are
         not that many).  Edges are taken in blocks (whatever the block, the same first
         actions): their starts first (one configuration each), then the edges' own tests
-        (one batch of their states), then the transits of those that pass."""
+        (one batch of their states), then the transits of those that pass.
+
+        `came_from`: the states of the edge the arm just executed.  Where the arm stands
+        inside the scene's margins (it pushed something), every transit begins with the
+        `retreat` along it; without one (none given, or none clear) a transit may leave the
+        margins directly, never going deeper."""
         out: list[Action] = []
+        q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
+        if came_from is not None and self.scene is not None:
+            key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self._scene_version)
+            if self._retreat[0] != key:  # a decision asks again and again (Lazy, one edge at a time)
+                inside = self.scene_slack(q_now[None])[0] < 0
+                self._retreat = (key, self.retreat(q_now, came_from) if inside else None)
+            back = self._retreat[1]
+            if back is not None:
+                lead, q_now = back, back[-1]  # transits are planned from the retreat's end
         block = max(want, MIN_BLOCK)
         i = 0
         while len(out) < want and i < len(edges):
@@ -327,7 +411,7 @@ class TransitPlanner:
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
                 transit = direct[j] if direct[j] is not None else via[j]
-                out.append(_action(bundle, int(part[j]), q_now, transit, direct[j] is None))
+                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), direct[j] is None))
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
@@ -398,7 +482,10 @@ def _box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
         return boxes_clearance(robot.arm, q, centers, rots, halves, unroll)
 
     return ChunkedKernel(
-        ("boxes_clearance", robot.model_hash, unroll, len(boxes[0])), one, list(boxes), [(np.float32, (robot.nq,))],
+        ("boxes_clearance", robot.model_hash, unroll, len(boxes[0])),
+        one,
+        list(boxes),
+        [(np.float32, (robot.nq,))],
         chunk,
     )
 

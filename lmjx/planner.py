@@ -287,6 +287,7 @@ class Planner:
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
         self.futile: dict[int, np.ndarray] = {}
+        self.came_from: np.ndarray | None = None  # the last executed edge's states (transits retreat along it)
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
         """One decision, simulating on this planner's simulator."""
@@ -308,7 +309,7 @@ class Planner:
         now = float(self.field(target))
         rec = StepRecord(-1, len(edges), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1, self.came_from)
             if acts:
                 rec.edge = acts[0].edge
             return (acts[0] if acts else None), rec
@@ -316,7 +317,7 @@ class Planner:
             want = cfg.greedy_candidates
             if cfg.greedy_fraction is not None:
                 want = max(1, math.ceil(cfg.greedy_fraction * len(edges)))
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, want)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, want, self.came_from)
             if not acts:
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -331,7 +332,7 @@ class Planner:
         tries = cfg.lazy_tries if cfg.lazy_cap else len(order)
         improved = False
         if self.batched:  # its tries at once, then the first improvement in their order
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries, self.came_from)
             rec.simulated = len(acts)
             if acts:
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -345,7 +346,7 @@ class Planner:
             for e in order:
                 if rec.simulated == tries:
                     break
-                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1)
+                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from)
                 if not acts:
                     continue
                 rec.simulated += 1
@@ -383,6 +384,7 @@ class Planner:
         cfg = self.config
         rng = np.random.default_rng(seed)
         self.futile = {}
+        self.came_from = None
         obs = executor.reset(layout, self.transits.park)
         steps: list[StepRecord] = []
         planning = 0.0
@@ -407,6 +409,7 @@ class Planner:
             t_before = obs.time
             before = obs.objects[0, :2].copy()
             obs = yield Execute(action)
+            self.came_from = self.bundle.edge(action.edge, ("q",))["q"]
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
                 self.futile[action.edge] = before

@@ -12,7 +12,14 @@ in issue 19: actions became ones a real arm could execute (transits clear of eve
 fixed obstacle, only edges whose arm comes into contact range of the target): on the small
 map almost no edge passes, so the trials are now those of the planner tests' map
 (conftest.PLAN_MAP: `python tests/golden.py SMALL_MAP OUT.json PLAN_MAP`), written by the
-code of that change.
+code of that change.  A third, also issue 19: a transit leaving a contact may no longer go
+deeper into the scene's margins on its way out; Greedy's second action of the golden trial
+went deeper (edge 724), it took edge 328 (final distance 0.2703 -> 0.2544 m).  A fourth, the
+same day: an edge acts on the target only if the arm sweeps 5 mm into its box (was: comes
+within 5 mm), a transit after a push first backs out along the edge (slowly, inside the
+margins), and leaving a margin is checked box by box: all three trials changed (Random now
+ends after one action with no feasible transit; Lazy and Greedy take edges 735, 724).  The
+map figures are unchanged throughout.
 """
 
 from __future__ import annotations
