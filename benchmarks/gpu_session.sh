@@ -4,7 +4,7 @@
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
 # warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026; issue 19:
-# issue19, evmap (once per carried map), eval19 (again to continue); planner, gputests, evalgpu and decision need
+# issue19, evmap (once per carried map), evprev (results of an earlier machine), eval19 (again to continue); planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
@@ -83,6 +83,14 @@ for step in $steps; do
     evmap)
       # An evaluation map carried in .evm1 or .evm2 (one per call: the carry limit), kept in /tmp.
       mkdir -p "$WORK/maps"; cp .evm*/*.h5 "$WORK/maps/" && ls -la "$WORK/maps" ;;
+    evprev)
+      # Continue an evaluation begun on an earlier machine: the results.json files carried in
+      # .evprev/ev_<sim>_<tasks>/ seed the run directories (lmjx evaluate skips recorded trials).
+      for d in .evprev/ev_*; do
+        [ -f "$d/results.json" ] || continue
+        mkdir -p "$WORK/$(basename "$d")"; cp "$d/results.json" "$WORK/$(basename "$d")/"
+        python3 -c "import json; print('$d', len(json.load(open('$d/results.json'))), 'trials carried')"
+      done ;;
     eval19)
       # Issue 19: both task sets, on the GPU (MuJoCo Warp, 1,024 candidates) and on the 16 host
       # cores (C MuJoCo, 32 candidates, JAX on the CPU) at once; resumable, each run stops
