@@ -95,6 +95,7 @@ for step in $steps; do
       # Issue 19: both task sets, on the GPU (MuJoCo Warp, 1,024 candidates) and on the 16 host
       # cores (C MuJoCo, 32 candidates, JAX on the CPU) at once; resumable, each run stops
       # before the call's limit (EVAL_S seconds from now) and the next call continues it.
+      # GPU_TASKS / CPU_TASKS choose each simulator's task sets (default: TASKS, paper hard).
       deadline=$(( $(date +%s) + ${EVAL_S:-560} ))
       run_eval() {  # sim tasks
         left=$(( deadline - $(date +%s) )); [ $left -gt 20 ] || return 0
@@ -104,10 +105,11 @@ for step in $steps; do
         cp "$WORK/ev_$1_$2.json" "$OUT/ev_$1_$2/summary.json" 2>/dev/null
       }
       ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE
-        for t in ${TASKS:-paper hard}; do run_eval gpu $t; done ) &
-      [ "${SIMS:-gpu cpu}" = gpu ] || ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS
-        for t in ${TASKS:-paper hard}; do run_eval cpu $t; done ) &
-      wait
+        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do run_eval gpu $t; done ) &
+      pids=$!
+      [ "${SIMS:-gpu cpu}" = gpu ] || { ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS
+        for t in ${CPU_TASKS:-${TASKS:-paper hard}}; do run_eval cpu $t; done ) & pids="$pids $!"; }
+      wait $pids  # (a bare wait would also wait for the tee of the log: forever)
       for d in "$OUT"/ev_*; do python3 -c "import json,sys; r=json.load(open('$d/results.json')); print('$d', len(r), 'trials')" 2>/dev/null; done ;;
     evalgpu)
       # The paper's evaluation with the GPU simulator (resumable: run again to continue).
