@@ -19,7 +19,10 @@ same day: an edge acts on the target only if the arm sweeps 5 mm into its box (w
 within 5 mm), a transit after a push first backs out along the edge (slowly, inside the
 margins), and leaving a margin is checked box by box: all three trials changed (Random now
 ends after one action with no feasible transit; Lazy and Greedy take edges 735, 724).  The
-map figures are unchanged throughout.
+map figures are unchanged throughout.  Across machines (2026-11-24, a CPU with AVX-512 and
+AMX): that one knife-edge start IK failed again (ik 778, table_collision 723), and the
+Random trial's final distance came out 2 um from the file's: the tests allow exactly that
+one start to go either way and 20 um on the final distance.
 """
 
 from __future__ import annotations

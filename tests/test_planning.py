@@ -114,8 +114,15 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 
     assert MAP_ARGS == ("--failure", "case2", "--edges", "3000", "--cell", "0.05", "--seed", "1")
     got, want = map_figures(str(small_map)), GOLDEN["map"]
-    for k in ("areas", "labels", "edges_valid", "edges_sampled", "rejected", "states"):
+    for k in ("areas", "labels", "edges_valid", "edges_sampled", "states"):
         assert got[k] == want[k], k
+    # One start IK of the 3,000 lies on a float32 knife edge that XLA's CPU code (which differs
+    # with the CPU's instruction set: AVX2, AVX-512) tips either way: found (then the edge hits
+    # the table) or not.  Every other rejection, and every valid edge, must be the same.
+    rej, rej_want = got["rejected"], want["rejected"]
+    assert set(rej) == set(rej_want) and sum(rej.values()) == sum(rej_want.values())
+    moved = {r: rej[r] - rej_want[r] for r in rej if rej[r] != rej_want[r]}
+    assert moved in ({}, {"ik": 1, "table_collision": -1}), moved
     for k in ("q_sum", "q_abs_sum"):
         assert got[k] == pytest.approx(want[k], rel=1e-6), k
 
@@ -131,7 +138,9 @@ def test_trials_run_and_repeat(robot, plan_map, asm):
     # the Panda plans as it did when the golden trials were written (tests/golden.py)
     want = GOLDEN["trials"][asm]
     assert (a.success, a.actions, [s.edge for s in a.steps]) == (want["success"], want["actions"], want["edges"])
-    assert a.final_distance == pytest.approx(want["final_distance_m"], abs=1e-6)
+    # (2 um apart between CPUs with and without AVX-512: the observation and transit programs
+    # run in XLA's CPU code; the "real" world is C MuJoCo)
+    assert a.final_distance == pytest.approx(want["final_distance_m"], abs=2e-5)
     assert a.execution_s == pytest.approx(want["execution_s"], abs=1e-6)
     sims = [s.simulated for s in a.steps]
     if asm == "random":
