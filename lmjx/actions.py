@@ -8,8 +8,11 @@ with C MuJoCo at every control step, or by lmjx's clearance kernel), or within
 `OBJECT_MARGIN` of a movable object or `FIXED_MARGIN` of a fixed obstacle (the planner's
 whole scene at its observed poses, `set_scene`; lmjx's box-clearance kernel, batched over
 every configuration of every candidate), it retreats first: up to the failure's park pose
-(the arm raised clear of the table), then straight down to the edge's start.  When that
-too is blocked, the action is not offered.  An edge whose start lies within the margins of
+(the arm raised clear of the table), then straight down to the edge's start; where the
+straight way up is blocked, by a dog-leg (some joints to their park values first, then the
+rest; `to_park`), whose first leg may pass movable objects at `JAM_MARGIN` when nothing
+keeps the full margin (the arm boxed in by objects a push has moved).  When that too is
+blocked, the action is not offered.  An edge whose start lies within the margins of
 an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is not offered
 either; nor, once a scene is set, an edge that does not intersect the target: whose arm
 never sweeps `ACT_DEPTH` into the target's box (the spatial index's cells are a coarse first
@@ -18,12 +21,14 @@ an edge that only grazes the observed box mostly misses the real one, 2 mm off).
 
 After an edge the arm often stands inside the margins (it pushed something): the transits
 of the next action then begin with a `retreat` back along that edge until the arm is clear
-(`came_from`); where there is none, a transit may leave the margins directly, never going
+(`came_from`; or, where the way back crosses an object the push moved, only until it is out
+of every margin); where there is none, a transit may leave the margins directly, never going
 deeper on the way out, never entering another object's.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import mujoco
@@ -37,6 +42,7 @@ from .scene import yaw_quat
 CONTROL_DT = 0.02  # the edges' control period [s]
 OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
 FIXED_MARGIN = 0.02  # ... and this far from every fixed obstacle [m]
+JAM_MARGIN = 0.004  # the first leg of a way out of a jam (`to_park`) keeps this far from movable objects [m]
 ACT_DEPTH = 0.005  # an edge acts on the target when the arm sweeps this deep into its box [m]
 LEAVE_TOLERANCE = 0.001  # a transit leaving a contact may come this much nearer than it began [m]
 RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outside the scene's margins [m]
@@ -136,6 +142,7 @@ class TransitPlanner:
 
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
         self._scene_version = 0
+        self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
         self._retreat: tuple = (None, None)  # (where from, along what, in which scene) -> the retreat
         self.scene: SceneBoxes | None = None
@@ -212,7 +219,7 @@ class TransitPlanner:
             doubt = np.ones(len(qs), bool)
         if doubt.any():
             out[doubt] = self.box_clearance(np.asarray(qs)[doubt]) - margins
-        return out
+        return out + self._relax * self.scene.movable
 
     def scene_slack(self, qs: np.ndarray) -> np.ndarray:
         """(n,) the smallest of `scene_slacks` (+inf without a scene)."""
@@ -266,7 +273,7 @@ class TransitPlanner:
             return []
         dq = q1 - q0
         start_slack = self.scene_slacks(q0)
-        n, fine = self._timing(dq, start_slack.min(axis=1, initial=np.inf) < 0)
+        n, fine = self._timing(dq, (start_slack.min(axis=1, initial=np.inf) < 0) | (self._relax > 0))
         owner = np.repeat(np.arange(len(q0)), fine)
         first = np.concatenate([[0], np.cumsum(fine)[:-1]])
         k = np.arange(len(owner)) - first[owner] + 1
@@ -339,24 +346,39 @@ class TransitPlanner:
     def retreat(self, q_now: np.ndarray, came_from: np.ndarray) -> np.ndarray | None:
         """Joint targets (T, nq) backing the arm out of the scene's margins the way it came:
         along `came_from` (the states of the edge it just executed) in reverse, from the state
-        nearest `q_now` back to the first that keeps RETREAT_SLACK outside every margin; or
-        None if no state does, or the way back comes nearer to anything than the arm is now
+        nearest `q_now` back to the first that keeps RETREAT_SLACK outside every margin or,
+        when the way there is blocked, back to the first outside every margin; or None if
+        neither exists, or the way back comes nearer to anything than the arm is now
         (LEAVE_TOLERANCE), or enters the table or the arm itself.
 
         An edge that pushed an object ends against it, inside the margins a transit keeps;
         a transit leaving sideways keeps within millimetres of it, which the real arm (its
         tracking error, the observation's noise) turns into contacts.  Backing out along the
-        edge moves straight away from whatever the edge approached."""
+        edge moves straight away from whatever the edge approached.  The way all the way back
+        may cross where the push left another object (an edge is checked against the target
+        and the fixed obstacles only): then the arm backs out just far enough to be clear of
+        every margin, and the transit goes on from there."""
         path = np.asarray(came_from, np.float64)
         j = int(np.argmin(np.abs(path - q_now).max(axis=1)))  # where along its way the arm stands
         back = path[max(j - 1, 0) :: -1]
         slack = self.scene_slack(back)
-        clear = np.nonzero(slack >= RETREAT_SLACK)[0]
-        if not len(clear):
-            return None
-        back = back[: clear[0] + 1]
+        tried: set[int] = set()
+        for need in (RETREAT_SLACK, 0.0):
+            clear = np.nonzero(slack >= need)[0]
+            if not len(clear) or int(clear[0]) in tried:
+                continue
+            tried.add(int(clear[0]))
+            way = self._back_along(q_now, back[: clear[0] + 1])
+            if way is not None:
+                return way
+        return None
+
+    def _back_along(self, q_now: np.ndarray, back: np.ndarray) -> np.ndarray | None:
+        """Joint targets from q_now through the states `back` (waypoints RETREAT_STEP apart,
+        the last kept) at NEAR_SPEED, or None where `_leaves_cleanly` or the table and the
+        arm forbid it."""
         way = [q_now]
-        for q in back[:-1]:  # waypoints RETREAT_STEP apart, the last one kept
+        for q in back[:-1]:
             if np.abs(q - way[-1]).max() >= RETREAT_STEP:
                 way.append(q)
         way.append(back[-1])
@@ -417,13 +439,47 @@ class TransitPlanner:
             block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
 
+    def to_park(self, q_now: np.ndarray) -> np.ndarray | None:
+        """Joint targets from q_now to the park pose: the straight line, or where it is
+        blocked (the arm among objects a push has moved) a dog-leg: first the joints of one
+        subset to their park values, the others held (lifting the shoulder clear, say), then
+        the rest; subsets of fewer joints first, all checked in one batch.  None if none is
+        free."""
+        first = self.segment(q_now, self.park)
+        if first is not None:
+            return first
+        moving = [int(i) for i in np.nonzero(np.abs(self.park - q_now) > 1e-6)[0]]
+        subsets = [c for k in range(1, len(moving)) for c in itertools.combinations(moving, k)]
+        if not subsets:
+            return None
+        mids = np.repeat(q_now[None], len(subsets), axis=0)
+        for row, c in zip(mids, subsets, strict=True):
+            row[list(c)] = self.park[list(c)]
+        for relax in (0.0, OBJECT_MARGIN - JAM_MARGIN):
+            # the first leg, at NEAR_SPEED when it starts inside the margins, may pass the
+            # movable objects at JAM_MARGIN where no leg keeps OBJECT_MARGIN (a push left the
+            # arm boxed in); the second leg, and everything after, keeps the full margins
+            self._relax = relax
+            try:
+                legs_a = self.segments(np.repeat(q_now[None], len(mids), axis=0), mids)
+            finally:
+                self._relax = 0.0
+            ok = [i for i, leg in enumerate(legs_a) if leg is not None]
+            if not ok:
+                continue
+            legs_b = self.segments(mids[ok], np.repeat(self.park[None], len(ok), axis=0))
+            for i, leg in zip(ok, legs_b, strict=True):
+                if leg is not None:
+                    return np.concatenate([legs_a[i], leg])
+        return None
+
     def _via_park(self, bundle: Bundle, part: np.ndarray, q_now: np.ndarray, idx: list[int]) -> dict[int, np.ndarray]:
         """Transits through the park pose for part[idx]: q_now -> park, then park -> start."""
         if not idx:
             return {}
         key_now = (q_now.tobytes(), self._scene_version)
         if self._to_park[0] != key_now:
-            self._to_park = (key_now, self.segment(q_now, self.park))
+            self._to_park = (key_now, self.to_park(q_now))
         first = self._to_park[1]
         if first is None:
             return {}

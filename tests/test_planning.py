@@ -464,3 +464,42 @@ def test_greedy_leaves_the_target_closer_than_random(robot, plan_map):
     losses = sum(g > r + 1e-3 for g, r, _ in pairs)
     assert sign_test_p(wins, losses) < 0.01, (wins, losses, pairs)
     assert not any(f for _, _, f in pairs)
+
+
+def test_a_blocked_way_to_park_goes_around_the_objects(robot, plan_map):
+    """Where the straight line to the park pose is blocked (a cube placed where the arm
+    passes halfway), `to_park` finds a dog-leg (some joints first, then the rest) that ends
+    at the park pose and keeps its margin from every movable object at every control step,
+    by C MuJoCo's mj_geomDistance; the table and the arm itself stay clear too (C MuJoCo's
+    contacts)."""
+    from lmjx.actions import JAM_MARGIN, OBJECT_MARGIN
+
+    m = load_map(plan_map)
+    sc = scenario(1, tasks="hard")
+    scene = build_scene(robot, sc)
+    model, d = scene.model, mujoco.MjData(scene.model)
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    starts = m.edges.q_start[:400].astype(np.float64)
+    starts = starts[~tp.colliding_batch(starts)]
+    q0 = starts[np.argmax(np.abs(starts - tp.park).max(axis=1))]
+    far = np.array([[5.0 + k, 5.0, 0.5, 1.0, 0.0, 0.0, 0.0] for k in range(len(sc.movable))])
+    set_state(scene, d, (q0 + tp.park) / 2, far)
+    tcp = model.site(robot.mj.site(robot.tcp_site).name).id
+    objects = far.copy()
+    objects[0, :3] = d.site_xpos[tcp]  # the target, where the arm's hand passes halfway
+    tp.set_scene(sc, objects, acting=False)
+    assert tp.segment(q0, tp.park) is None
+    path = tp.to_park(q0)
+    assert path is not None and np.allclose(path[-1], tp.park)
+    set_state(scene, d, q0, objects)
+    clearance = arm_clearance_fn(robot, scene, d)
+    movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
+    gaps = np.array([clearance(q, movable) for q in path])
+    # the start keeps its margin, so no leg needed the jam's reduced one
+    assert clearance(q0, movable) >= OBJECT_MARGIN and gaps.min() >= OBJECT_MARGIN - 1e-4 > JAM_MARGIN
+    for q in path[::5]:
+        d.qpos[scene.robot_qpos] = q
+        mujoco.mj_forward(model, d)
+        assert not any(
+            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 for c in d.contact[: d.ncon]
+        )
