@@ -36,6 +36,7 @@ import numpy as np
 
 from .bundle import Bundle
 from .failure import Failure
+from .roadmap import Roadmap
 from .robot import Robot
 from .scene import yaw_quat
 
@@ -109,7 +110,8 @@ class Action:
     q: np.ndarray  # (T, nq)
     qd: np.ndarray  # (T, nq)
     transit_steps: int  # the first transit_steps rows move to the edge's start
-    via_park: bool
+    via_park: bool  # the transit is not the straight line (through the park pose, or the roadmap)
+    route: str = "direct"  # the transit: "direct", "park" (through the park pose) or "roadmap"
 
     @property
     def duration(self) -> float:
@@ -127,7 +129,9 @@ class TransitPlanner:
     park-to-start half does not depend on where the arm is.
     """
 
-    def __init__(self, robot: Robot, failure: Failure, speed_fraction: float = 0.5, batched: bool = False) -> None:
+    def __init__(
+        self, robot: Robot, failure: Failure, speed_fraction: float = 0.5, batched: bool = False, search: bool = True
+    ) -> None:
         self.robot = robot
         self.failure = failure
         self.m = robot.mj
@@ -149,6 +153,8 @@ class TransitPlanner:
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
         self._from_park: dict[tuple[int, int], np.ndarray | None] = {}  # (bundle id, edge) -> park -> start
+        self.search = search  # where the straight transit and the park's are blocked, search a roadmap
+        self._roadmaps: dict[int, Roadmap] = {}  # bundle id -> its roadmap
 
     def set_scene(self, sc, objects: np.ndarray, acting: bool = True) -> None:
         """The scene transits must keep clear of from now on: scenario `sc` with its movable
@@ -429,15 +435,29 @@ class TransitPlanner:
             starts = bundle.q_start[part].astype(np.float64)
             direct = self.segments(np.repeat(q_now[None], len(part), axis=0), starts)
             via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
-            ok = [j for j in range(len(part)) if direct[j] is not None or j in via]
+            rest = [j for j, p in enumerate(direct) if p is None and j not in via]
+            if rest and self.search:
+                found = self.roadmap(bundle).transits(q_now, starts[rest])
+                road = {j: f for j, f in zip(rest, found, strict=True) if f is not None}
+            else:
+                road = {}
+            ok = [j for j in range(len(part)) if direct[j] is not None or j in via or j in road]
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
-                transit = direct[j] if direct[j] is not None else via[j]
-                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), direct[j] is None))
+                route = "direct" if direct[j] is not None else "park" if j in via else "roadmap"
+                transit = {"direct": direct, "park": via, "roadmap": road}[route][j]
+                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route))
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
+
+    def roadmap(self, bundle: Bundle) -> Roadmap:
+        """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle)."""
+        key = id(bundle)
+        if key not in self._roadmaps:
+            self._roadmaps[key] = Roadmap(self, bundle.q_start)
+        return self._roadmaps[key]
 
     def to_park(self, q_now: np.ndarray) -> np.ndarray | None:
         """Joint targets from q_now to the park pose: the straight line, or where it is
@@ -497,7 +517,7 @@ class TransitPlanner:
         return out
 
 
-def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, via_park: bool) -> Action:
+def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, route: str) -> Action:
     states = bundle.edge(edge, ("q", "qd"))
     q_edge = states["q"].astype(np.float64)
     qd_edge = states["qd"].astype(np.float64)
@@ -507,7 +527,8 @@ def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, v
         q=np.concatenate([transit, q_edge]),
         qd=np.concatenate([qd_transit, qd_edge]),
         transit_steps=len(transit),
-        via_park=via_park,
+        via_park=route != "direct",
+        route=route,
     )
 
 

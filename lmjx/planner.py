@@ -111,6 +111,7 @@ class StepRecord:
     transit_contacts: tuple[str, ...] = ()
     transit_hit_fixed: bool = False
     transit_left: tuple[str, ...] = ()
+    transit_route: str = ""  # "direct", "park" or "roadmap" (`Action.route`)
 
     def summary(self) -> dict:
         return {
@@ -123,6 +124,7 @@ class StepRecord:
             "transit_contacts": list(self.transit_contacts),
             "transit_hit_fixed": self.transit_hit_fixed,
             "transit_left": list(self.transit_left),
+            "transit_route": self.transit_route,
         }
 
 
@@ -419,6 +421,7 @@ class Planner:
             rec.transit_contacts = obs.transit_contacts
             rec.transit_hit_fixed = obs.transit_hit_fixed
             rec.transit_left = obs.transit_left
+            rec.transit_route = action.route
             steps.append(rec)
             if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
                 reason = "target off the table"
