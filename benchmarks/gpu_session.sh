@@ -104,9 +104,18 @@ for step in $steps; do
         tail -2 "$WORK/ev_$1_$2.err"; mkdir -p "$OUT/ev_$1_$2"; cp "$WORK/ev_$1_$2"/* "$OUT/ev_$1_$2/" 2>/dev/null
         cp "$WORK/ev_$1_$2.json" "$OUT/ev_$1_$2/summary.json" 2>/dev/null
       }
-      ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE
-        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do run_eval gpu $t; done ) &
-      pids=$!
+      # GPU_PAR=1: each GPU task set in a process of its own, at once (they share the GPU)
+      pids=""
+      if [ -n "${GPU_PAR:-}" ]; then
+        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do
+          ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE; run_eval gpu $t ) &
+          pids="$pids $!"
+        done
+      else
+        ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE
+          for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do run_eval gpu $t; done ) &
+        pids=$!
+      fi
       [ "${SIMS:-gpu cpu}" = gpu ] || { ( JAX_PLATFORMS=cpu; export JAX_PLATFORMS
         for t in ${CPU_TASKS:-${TASKS:-paper hard}}; do run_eval cpu $t; done ) & pids="$pids $!"; }
       wait $pids  # (a bare wait would also wait for the tee of the log: forever)
