@@ -97,16 +97,24 @@ for step in $steps; do
       # before the call's limit (EVAL_S seconds from now) and the next call continues it.
       # GPU_TASKS / CPU_TASKS choose each simulator's task sets (default: TASKS, paper hard).
       deadline=$(( $(date +%s) + ${EVAL_S:-560} ))
-      run_eval() {  # sim tasks
+      run_eval() {  # sim tasks [scenario: only it, in ev_<sim>_<tasks>_s<scenario>]
         left=$(( deadline - $(date +%s) )); [ $left -gt 20 ] || return 0
-        /usr/bin/time -f "eval $1 $2: %e s wall" timeout $left python3 -m lmjx.cli evaluate --sim $1 --tasks $2 \
-          --maps "$WORK/maps" --out "$WORK/ev_$1_$2" --json > "$WORK/ev_$1_$2.json" 2> "$WORK/ev_$1_$2.err"
-        tail -2 "$WORK/ev_$1_$2.err"; mkdir -p "$OUT/ev_$1_$2"; cp "$WORK/ev_$1_$2"/* "$OUT/ev_$1_$2/" 2>/dev/null
-        cp "$WORK/ev_$1_$2.json" "$OUT/ev_$1_$2/summary.json" 2>/dev/null
+        n="ev_$1_$2${3:+_s$3}"
+        /usr/bin/time -f "eval $n: %e s wall" timeout $left python3 -m lmjx.cli evaluate --sim $1 --tasks $2 \
+          ${3:+--scenarios $3} --maps "$WORK/maps" --out "$WORK/$n" --json > "$WORK/$n.json" 2> "$WORK/$n.err"
+        tail -2 "$WORK/$n.err"; mkdir -p "$OUT/$n"; cp "$WORK/$n"/* "$OUT/$n/" 2>/dev/null
+        cp "$WORK/$n.json" "$OUT/$n/summary.json" 2>/dev/null
       }
-      # GPU_PAR=1: each GPU task set in a process of its own, at once (they share the GPU)
+      # GPU_PAR=1: each GPU task set in a process of its own, at once (they share the GPU);
+      # GPU_SPLIT=1: each scenario of each GPU task set in a process of its own (results in
+      # ev_gpu_<tasks>_s<n>: merge them with benchmarks/eval_acceptance.py --merge)
       pids=""
-      if [ -n "${GPU_PAR:-}" ]; then
+      if [ -n "${GPU_SPLIT:-}" ]; then
+        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do for s in 1 2 3; do
+          ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE; run_eval gpu $t $s ) &
+          pids="$pids $!"
+        done; done
+      elif [ -n "${GPU_PAR:-}" ]; then
         for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do
           ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE; run_eval gpu $t ) &
           pids="$pids $!"

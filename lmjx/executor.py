@@ -35,9 +35,42 @@ class Observation:
     # what the last executed action did (a real backend reports what it can measure):
     target_moved_m: float = float("nan")  # the target's displacement on the table [m]
     transit_contacts: tuple[str, ...] = ()  # movable objects the arm came into contact with before
-    # the edge began (not those it was already touching when the transit began and left)
+    # the edge began (not those it was already touching when the transit began and left:
+    # `LEAVE_S`)
     transit_hit_fixed: bool = False  # the arm came into contact with a fixed obstacle before the edge began
     transit_left: tuple[str, ...] = ()  # objects and obstacles the arm was touching as the transit began
+
+
+# A contact the arm is in when a transit begins (the last edge ended against the target) is
+# still being left while it comes and goes with gaps of at most this long: as a link slides
+# off a box the contact solver makes and breaks the contact for a few steps (measured: the
+# target's contact chattered for 0.2 s with gaps of 5-25 ms, trial case1:1:1008 of the paper
+# set).  Once absent this long it is left; touching the object again counts.
+LEAVE_S = 0.05  # [s]
+
+
+class TransitContacts:
+    """What a transit touches, from the contacts seen at each physics step: an object or
+    obstacle the arm enters contact with, except those it was touching when the transit
+    began while it is still leaving them (`LEAVE_S`)."""
+
+    def __init__(self, objects: set[str], fixed: set[str]) -> None:
+        self.left = objects | fixed  # touching as the transit began
+        self._leaving = dict.fromkeys(self.left, 0.0)  # name -> when last in contact
+        self._prev = (set(objects), set(fixed))
+        self.objects: set[str] = set()  # movable objects touched
+        self.fixed: set[str] = set()  # fixed obstacles touched
+
+    def update(self, t: float, objects: set[str], fixed: set[str]) -> None:
+        """The contacts at time `t` [s] since the transit began."""
+        for name in [n for n in self._leaving if n in objects or n in fixed]:
+            if t - self._leaving[name] <= LEAVE_S + 1e-9:
+                self._leaving[name] = t
+            else:
+                del self._leaving[name]
+        self.objects |= objects - self._prev[0] - self._leaving.keys()
+        self.fixed |= fixed - self._prev[1] - self._leaving.keys()
+        self._prev = (set(objects), set(fixed))
 
 
 class Executor(Protocol):
@@ -125,23 +158,18 @@ class SimulatedRealWorld:
         m, d = self.scene.model, self.data
         before = self.truth()[0, :2]
         transit = action.transit_steps * round(CONTROL_DT / m.opt.timestep)  # physics steps before the edge
-        touched: set[str] = set()
-        hit_fixed: set[str] = set()
         # a transit "touches" what it comes into contact with: contacts the arm is already in
         # when it begins (the last edge ended against an object or the table) and leaves are
-        # not counted; one it enters again after leaving is
-        prev_objects, prev_fixed = self._touching()
-        left = prev_objects | prev_fixed
+        # not counted; one it enters again once it has left it (absent LEAVE_S) is
+        ledger = TransitContacts(*self._touching())
         for i, u in enumerate(controls(action, m.opt.timestep, self.settle)):
             d.ctrl[:] = u
             mujoco.mj_step(m, d)
             if i < transit:
-                objects, fixed = self._touching() if d.ncon else (set(), set())
-                touched |= objects - prev_objects
-                hit_fixed |= fixed - prev_fixed
-                prev_objects, prev_fixed = objects, fixed
+                ledger.update((i + 1) * m.opt.timestep, *(self._touching() if d.ncon else (set(), set())))
             if self.on_step is not None:
                 self.on_step(m, d)
+        touched, hit_fixed, left = ledger.objects, ledger.fixed, ledger.left
         self.time += action.duration + self.settle
         obs = self.observe()
         obs.target_moved_m = float(np.hypot(*(self.truth()[0, :2] - before)))

@@ -14,7 +14,7 @@ import pytest
 from conftest import cli
 
 from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
-from lmjx.executor import SimulatedRealWorld, real_physics
+from lmjx.executor import LEAVE_S, SimulatedRealWorld, TransitContacts, real_physics
 from lmjx.failure import parse_failure
 from lmjx.mapfile import load_map
 from lmjx.planner import ENDS, PlannerConfig, score
@@ -40,6 +40,27 @@ def test_layouts_are_seeded_and_apart(robot, n):
         mujoco.mj_step(s.model, d)
     assert np.abs(read_objects(s, d)[:, :3] - object_qpos(s, a.poses)[:, :3]).max() < 1e-3
     assert not in_goal(sc, a.poses[0, :2])
+
+
+def test_a_transit_counts_what_it_touches_not_the_chatter_of_what_it_leaves():
+    dt = 0.005
+    # the arm ends a push against the target; as it slides off, the contact comes and goes
+    c = TransitContacts({"target"}, set())
+    timeline = [{"target"}, set(), set(), {"target"}, set(), {"target"}] + [set()] * 5 + [{"obstacle1"}]
+    for i, objects in enumerate(timeline):
+        c.update((i + 1) * dt, objects, set())
+    assert c.left == {"target"} and c.objects == {"obstacle1"} and not c.fixed
+    # once the target has been out of contact longer than LEAVE_S, touching it again counts
+    c = TransitContacts({"target"}, set())
+    gap = int(LEAVE_S / dt) + 2
+    for i, objects in enumerate([{"target"}] + [set()] * gap + [{"target"}]):
+        c.update((i + 1) * dt, objects, set())
+    assert c.objects == {"target"}
+    # a fixed obstacle met during the transit is a hit; nothing touched before is a contact
+    c = TransitContacts(set(), set())
+    c.update(dt, set(), {"wall_near"})
+    c.update(2 * dt, {"target"}, {"wall_near"})
+    assert c.fixed == {"wall_near"} and c.objects == {"target"} and c.left == set()
 
 
 def test_real_world_differs_from_the_planners_within_documented_ranges(robot):
