@@ -139,6 +139,11 @@ def main() -> None:
         help="write DEST/results.json (the first DIR) from the results.json of the others (runs of one task set "
         "split by scenario, e.g. GPU_SPLIT=1 in gpu_session.sh), then rewrite DEST's report and stop",
     )
+    ap.add_argument(
+        "--simulator",
+        help="the simulator's description for a rewritten report (default: this machine's; give it when "
+        "rewriting a GPU run's report elsewhere, e.g. 'gpu: MuJoCo Warp on NVIDIA H100 80GB HBM3, whole scene')",
+    )
     args = ap.parse_args()
     if args.merge:
         dest, *srcs = (Path(d) for d in args.merge)
@@ -168,7 +173,9 @@ def main() -> None:
         cand = next((r["candidates"] for r in recs if r["candidates"]), 32)
         config = EvalConfig(tasks=recs[0]["tasks"], planner=PlannerConfig(greedy_candidates=cand))
         robot = load_robot(recs[0].get("robot", "panda"))
-        write_text_atomic(d / "report.md", report_markdown(recs, config, simulator_description(sim), robot))
+        write_text_atomic(
+            d / "report.md", report_markdown(recs, config, args.simulator or simulator_description(sim), robot)
+        )
         plots(recs, d)
         print(f"{d}: {len(recs)} trials, report.md and plots rewritten")
         return
