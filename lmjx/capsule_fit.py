@@ -10,8 +10,8 @@ frame) is covered by one to `MAX_CAPSULES` capsules, every point inside one of t
     radial distance rho <= r is inside iff it lies within sqrt(r^2 - rho^2) of the segment
     (the segment is [min(t + s), max(t - s)] with s = sqrt(r^2 - rho^2)).  The axis of the
     smallest volume wins.
-  * k capsules: the points split into k slabs along the best single capsule's axis, the
-    cut positions searched on a grid of quantiles; each slab gets its own capsule.  One more
+  * k capsules: the points split into k slabs across one of their principal axes (each
+    tried), the cuts searched on a grid of quantiles; each slab gets its own capsule.  One more
     capsule is taken only if it cuts the summed volume by `GAIN` or more.
 
 Every point is covered by construction (`coverage` measures it); the tightness is the union's
@@ -27,10 +27,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import minimize
 from scipy.spatial import ConvexHull, QhullError
 
-MAX_CAPSULES = 3
-GAIN = 0.15  # another capsule must cut the summed volume by this share
+MAX_CAPSULES = 4
+GAIN = 0.05  # another capsule must cut the summed volume by this share
 MIN_HALF = 5e-4  # [m] half length of a capsule whose points need no length (a sphere's)
 
 
@@ -141,35 +142,53 @@ def _axes(points: np.ndarray) -> list[np.ndarray]:
     return uniq
 
 
-def fit_one(points: np.ndarray) -> Capsule:
-    """The smallest enclosing capsule over the candidate axes."""
+def fit_one(points: np.ndarray, refine: bool = True) -> Capsule:
+    """The smallest enclosing capsule over the candidate axes, the best axis then refined
+    (Nelder-Mead over its two angles) if `refine`."""
     hull = _hull_points(points)
-    return min((capsule_along(hull, d) for d in _axes(points)), key=lambda c: c.volume)
+    best = min((capsule_along(hull, d) for d in _axes(points)), key=lambda c: c.volume)
+    d0 = best.b - best.a
+    if not refine or np.linalg.norm(d0) < 4 * MIN_HALF:
+        return best
+    d0 /= np.linalg.norm(d0)
+
+    def direction(x: np.ndarray) -> np.ndarray:
+        th, ph = x
+        return np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+
+    x0 = np.array([np.arccos(np.clip(d0[2], -1, 1)), np.arctan2(d0[1], d0[0])])
+    res = minimize(lambda x: capsule_along(hull, direction(x)).volume, x0, method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-10, "maxiter": 80})  # fmt: skip
+    refined = capsule_along(hull, direction(res.x))
+    return refined if refined.volume < best.volume else best
 
 
 def fit_capsules(points: np.ndarray, max_capsules: int = MAX_CAPSULES) -> list[Capsule]:
-    """One to `max_capsules` capsules that together enclose every point (n, 3)."""
+    """One to `max_capsules` capsules that together enclose every point (n, 3): the slabs
+    chosen with each slab's best candidate axis, then every chosen capsule's axis refined."""
     points = np.asarray(points, dtype=np.float64)
-    best = [fit_one(points)]
-    axis = best[0].b - best[0].a
-    if np.linalg.norm(axis) < 4 * MIN_HALF:
-        return best
-    t = points @ (axis / np.linalg.norm(axis))
-    grid = np.quantile(t, np.linspace(0.1, 0.9, 17))
-    for k in range(2, max_capsules + 1):
-        trial = None
-        for cuts in itertools.combinations(grid, k - 1):
-            edges = [-np.inf, *cuts, np.inf]
-            parts = [points[(t >= lo) & (t <= hi)] for lo, hi in itertools.pairwise(edges)]
-            if any(len(p) < 4 for p in parts):
-                continue
-            caps = [fit_one(p) for p in parts]
-            if trial is None or sum(c.volume for c in caps) < sum(c.volume for c in trial):
-                trial = caps
-        if trial is None or sum(c.volume for c in trial) > (1 - GAIN) * sum(c.volume for c in best):
-            break
-        best = trial
-    return best
+    best = [fit_one(points, refine=False)]
+    parts_best = [points]
+    if len(points) >= 8:
+        w, vecs = np.linalg.eigh(np.cov((points - points.mean(0)).T))
+        split_axes = [vecs[:, i] for i in np.argsort(w)[::-1]]  # slabs across each principal axis
+        for k in range(2, max_capsules + 1):
+            trial, trial_parts = None, None
+            for d in split_axes:
+                t = points @ d
+                grid = np.quantile(t, np.linspace(0.1, 0.9, 17 if k == 2 else 9))
+                for cuts in itertools.combinations(grid, k - 1):
+                    edges = [-np.inf, *cuts, np.inf]
+                    parts = [points[(t >= lo) & (t <= hi)] for lo, hi in itertools.pairwise(edges)]
+                    if any(len(p) < 4 for p in parts):
+                        continue
+                    caps = [fit_one(p, refine=False) for p in parts]
+                    if trial is None or sum(c.volume for c in caps) < sum(c.volume for c in trial):
+                        trial, trial_parts = caps, parts
+            if trial is None or sum(c.volume for c in trial) > (1 - GAIN) * sum(c.volume for c in best):
+                break
+            best, parts_best = trial, trial_parts
+    return [fit_one(p) for p in parts_best]
 
 
 def coverage(points: np.ndarray, caps: list[Capsule], tol: float = 1e-7) -> float:

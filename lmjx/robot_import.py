@@ -533,18 +533,19 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
                 shift = m.body_mass[b] * (rr @ rr * np.eye(3) - np.outer(rr, rr))  # parallel axes
                 inertia += r @ np.diag(m.body_inertia[b]) @ r.T + shift
             inertial[nm] = (mass, f.inv_apply(com), f.rot.T @ inertia @ f.rot)
-        pts, vol = _collision_points(m, d, members)
-        if len(pts) == 0:
-            if nm != "base" and not (separate_tool and nm == out_bodies[-1][0]):
-                raise SourceError(f"link '{nm}' has no collision geometry in {src.path.name}")
-            continue
-        local = f.inv_apply(pts)
-        c = fit_capsules(local)
-        caps[nm] = c
-        fits.append(LinkFit(nm, c, len(local), coverage(local, c), vol, union_volume(c)))
-    if separate_tool and out_bodies[-1][0] not in caps:
-        # a tool link with no geometry of its own: the arm's last link holds its capsules
-        pass
+        # each source link keeps capsules of its own (a hand's fingers stay apart: the grasp
+        # needs the space between them)
+        caps[nm] = []
+        for b in sorted(members):
+            pts, vol = _collision_points(m, d, {b})
+            if len(pts) == 0:
+                continue
+            local = f.inv_apply(pts)
+            c = fit_capsules(local)
+            caps[nm] += c
+            fits.append(LinkFit(m.body(b).name, c, len(local), coverage(local, c), vol, union_volume(c)))
+        if not caps[nm] and nm != "base" and not (separate_tool and nm == out_bodies[-1][0]):
+            raise SourceError(f"link '{nm}' has no collision geometry in {src.path.name}")
 
     # sites
     sites: dict[str, list[tuple[str, np.ndarray, float, np.ndarray | None]]] = {nm: [] for nm, _ in out_bodies}
