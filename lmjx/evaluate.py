@@ -220,7 +220,7 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
         "",
         "ASM settings: " + ", ".join(f"{k} {_onoff(v)}" for k, v in settings.items()) + ".",
         "",
-        "How the trials ended, and what their executed actions did in the \"real\" world (the target moved by "
+        'How the trials ended, and what their executed actions did in the "real" world (the target moved by '
         "1 cm or more; a transit touched a movable object; a transit touched a fixed obstacle):",
         "",
         "| failure | scenario | ASM | ends | actions | target moved >= 1 cm | transit touched an object "

@@ -473,7 +473,7 @@ def load_map(
                     rebuild = (
                         f": its spatial index follows one interaction point, not the whole arm; rebuild it with "
                         f"lmjx build-map{'' if robot_name == 'panda' else f' --robot {robot_name}'} "
-                        f"--failure \"{_attr_str(attrs['failure'])}\" --out {p}"
+                        f'--failure "{_attr_str(attrs["failure"])}" --out {p}'
                     )
                 raise MapFileError(
                     f"{p} has map schema version {version}; this lmjx ({__version__}) reads version {SCHEMA_VERSION}"

@@ -284,4 +284,3 @@ def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_pa
         w.finish(tmp_path / "b.h5", kernels, 0.0, "cpu")
     w.abort()
     assert not (tmp_path / "b.h5").exists()
-

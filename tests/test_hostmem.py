@@ -59,7 +59,10 @@ def test_freed_buffers_leave_resident_memory():
     for setting in ("off", "on"):
         run = subprocess.run(
             [sys.executable, "-c", PROBE, setting],
-            capture_output=True, text=True, check=True, env=_glibc_defaults(),
+            capture_output=True,
+            text=True,
+            check=True,
+            env=_glibc_defaults(),
         )
         grown[setting] = json.loads(run.stdout)
     assert grown["on"]["rss"] < 8 * 2**20, grown
