@@ -44,7 +44,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .capsule_fit import Capsule, coverage, fit_capsules, hull_volume, union_volume
+from .capsule_fit import Capsule, coverage, fit_capsules, hull_volume, segment_distance, union_volume
 from .errors import ConfigError
 from .fileio import write_text_atomic
 
@@ -281,16 +281,24 @@ def arm_chain(src: Source) -> tuple[list[int], list[int]]:
     return arm, path
 
 
-def _per_joint(text: str | None, n: int, what: str) -> np.ndarray | None:
-    if text is None:
-        return None
+def _numbers(text: str, what: str) -> list[float]:
     try:
         vals = [float(v) for v in str(text).split(",")]
     except ValueError:
         raise SourceError(f"{what} '{text}' is not a number or a comma-separated list of numbers") from None
+    if not all(math.isfinite(v) for v in vals):
+        raise SourceError(f"{what} '{text}': every value must be finite")
+    return vals
+
+
+def _per_joint(text: str | None, n: int, what: str) -> np.ndarray | None:
+    """A positive limit per joint: one value for all, or n comma-separated."""
+    if text is None:
+        return None
+    vals = _numbers(text, what)
     if len(vals) == 1:
         vals = vals * n
-    if len(vals) != n or not all(math.isfinite(v) and v > 0 for v in vals):
+    if len(vals) != n or not all(v > 0 for v in vals):
         raise SourceError(f"{what} needs one positive value or {n} (one per arm joint), got '{text}'")
     return np.array(vals)
 
@@ -315,7 +323,7 @@ def _limits(src: Source, arm: list[int], opt: ImportOptions) -> tuple[np.ndarray
         ("qd", "velocity", "--qd-max", "velocity limit"),
         ("tau", "effort", "--tau-max", "effort (torque) limit"),
     ):
-        given = _per_joint(getattr(opt, f"{key}_max" if key != "tau" else "tau_max"), n, flag)
+        given = _per_joint(getattr(opt, f"{key}_max"), n, flag)
         vals = []
         for i, info in enumerate(infos):
             v = getattr(info, attr)
@@ -565,7 +573,7 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
             raise SourceError(f"--ip {ip_name}: no body '{body}' in the imported arm (bodies: {', '.join(sites)})")
         sites[body].append((f"ip_{ip_name}", pos, size, None))
 
-    ready = _per_joint_any(opt.ready, n, "--ready")
+    ready = _joint_values(opt.ready, n, "--ready")
     if ready is not None and np.any((ready < ranges[:, 0]) | (ready > ranges[:, 1])):
         raise SourceError("--ready: a value is outside its joint's range")
     span = float(np.linalg.norm(tcp_pos)) + sum(
@@ -574,63 +582,31 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
         if nm != m.body(arm_bodies[0]).name
     )
     name = opt.name or f"lmjx_{src.name}"
-    text = _write_mjcf(
-        name,
-        src,
-        m,
-        arm,
-        arm_bodies,
-        out_bodies,
-        parent_of,
-        frames,
-        inertial,
-        caps,
-        sites,
-        ranges,
-        lim,
-        ready,
-        span,
-        excludes=[("base", m.body(arm_bodies[0]).name)],
-    )
-    excluded = _touching_pairs(text, out_bodies, parent_of)
-    excludes = [("base", m.body(arm_bodies[0]).name), *excluded]
+
+    def mjcf(excludes: list[tuple[str, str]], header: str = "") -> str:
+        return _write_mjcf(name, src, m, arm, arm_bodies, out_bodies, parent_of, frames, inertial, caps, sites,
+                           ranges, lim, ready, span, excludes=excludes, header=header)  # fmt: skip
+
+    # the exclusions are found on the model itself: once without them but the base's
+    excludes = [("base", m.body(arm_bodies[0]).name)]
+    excludes += _touching_pairs(mjcf(excludes), out_bodies, parent_of)
     header = _header(
         src, command, arm, m, ranges, lim, notes, welded, fits, excludes, ips, tcp_link, tcp_off, flange_link
     )
-    text = _write_mjcf(
-        name,
-        src,
-        m,
-        arm,
-        arm_bodies,
-        out_bodies,
-        parent_of,
-        frames,
-        inertial,
-        caps,
-        sites,
-        ranges,
-        lim,
-        ready,
-        span,
-        excludes=excludes,
-        header=header,
-    )
+    text = mjcf(excludes, header)
     out = Path(out)
     write_text_atomic(out, text)
     return ImportReport(out, [m.joint(j).name for j in arm], fits, welded, excludes, notes)
 
 
-def _per_joint_any(text: str | None, n: int, what: str) -> np.ndarray | None:
+def _joint_values(text: str | None, n: int, what: str) -> np.ndarray | None:
+    """Exactly n joint values (a pose) [rad]."""
     if text is None:
         return None
-    try:
-        vals = np.array([float(v) for v in text.split(",")])
-    except ValueError:
-        raise SourceError(f"{what} '{text}' must be {n} comma-separated numbers") from None
+    vals = _numbers(text, what)
     if len(vals) != n:
         raise SourceError(f"{what} needs {n} values (one per arm joint), got {len(vals)}")
-    return vals
+    return np.array(vals)
 
 
 def _interaction_points(
@@ -646,9 +622,7 @@ def _interaction_points(
     n = len(arm_links)
     size = 0.006
     for c in caps.get(tool, []):
-        ab = c.b - c.a
-        t = np.clip((tcp - c.a) @ ab / max(float(ab @ ab), 1e-300), 0, 1)
-        if np.linalg.norm(tcp - (c.a + t * ab)) <= c.r:
+        if segment_distance(tcp[None], c.a, c.b)[0] <= c.r:
             size = c.r
     out["hand"] = (tool, tcp, size)
 
