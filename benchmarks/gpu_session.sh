@@ -83,6 +83,24 @@ for step in $steps; do
     evmap)
       # An evaluation map carried in .evm1 or .evm2 (one per call: the carry limit), kept in /tmp.
       mkdir -p "$WORK/maps"; cp .evm*/*.h5 "$WORK/maps/" && ls -la "$WORK/maps" ;;
+    contacts19)
+      # Issue 19's transit contacts on the host's cores (C MuJoCo, Random, no GPU): the rules
+      # as they are against two variants, 5 hard-set trials of 4 cells each, in background
+      # processes (CONTACT_TRIALS per cell, default 5); raw lines in $OUT/contacts_<variant>.jsonl.
+      for v in base lt ltns; do
+        case $v in base) opt="" ;; lt) opt="--leave-tolerance 0.0002" ;; ltns) opt="--leave-tolerance 0.0002 --near-speed 0.1" ;; esac
+        for cell in case1:1 case1:3 case2:1 case2:3; do
+          sc=${cell#*:}; trials=""
+          for i in $(seq 0 $(( ${CONTACT_TRIALS:-5} - 1 ))); do trials="$trials $cell:$(( sc * 1000 + i )):random:hard"; done
+          ( JAX_PLATFORMS=cpu timeout ${CONTACT_S:-540} python3 benchmarks/transit_contacts.py "$WORK/maps" \
+              "$OUT/contacts_$v.jsonl" $opt $trials >> "$WORK/contacts_$v.log" 2>&1 ) &
+          cpids="${cpids:-} $!"
+        done
+      done ;;
+    contactswait)
+      wait ${cpids:-}; for v in base lt ltns; do
+        python3 -c "import json; r=[json.loads(l) for l in open('$OUT/contacts_$v.jsonl')]; print('$v', len(r), 'actions,', sum(bool(x['contacts']) for x in r), 'touched')"
+      done ;;
     evprev)
       # Continue an evaluation begun on an earlier machine: the results.json files carried in
       # .evprev/ev_<sim>_<tasks>/ seed the run directories (lmjx evaluate skips recorded trials).
@@ -97,11 +115,12 @@ for step in $steps; do
       # before the call's limit (EVAL_S seconds from now) and the next call continues it.
       # GPU_TASKS / CPU_TASKS choose each simulator's task sets (default: TASKS, paper hard).
       deadline=$(( $(date +%s) + ${EVAL_S:-560} ))
-      run_eval() {  # sim tasks [scenario: only it, in ev_<sim>_<tasks>_s<scenario>]
+      run_eval() {  # sim tasks [scenario [failure]: only them, in ev_<sim>_<tasks>_s<scenario>[_<failure>]]
         left=$(( deadline - $(date +%s) )); [ $left -gt 20 ] || return 0
-        n="ev_$1_$2${3:+_s$3}"
+        n="ev_$1_$2${3:+_s$3}${4:+_$4}"
         /usr/bin/time -f "eval $n: %e s wall" timeout $left python3 -m lmjx.cli evaluate --sim $1 --tasks $2 \
-          ${3:+--scenarios $3} --maps "$WORK/maps" --out "$WORK/$n" --json > "$WORK/$n.json" 2> "$WORK/$n.err"
+          ${3:+--scenarios $3} ${4:+--failures $4} --maps "$WORK/maps" --out "$WORK/$n" --json > "$WORK/$n.json" \
+          2> "$WORK/$n.err"
         tail -2 "$WORK/$n.err"; mkdir -p "$OUT/$n"; cp "$WORK/$n"/* "$OUT/$n/" 2>/dev/null
         cp "$WORK/$n.json" "$OUT/$n/summary.json" 2>/dev/null
       }
@@ -110,9 +129,13 @@ for step in $steps; do
       # ev_gpu_<tasks>_s<n>: merge them with benchmarks/eval_acceptance.py --merge)
       pids=""
       if [ -n "${GPU_SPLIT:-}" ]; then
-        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do for s in 1 2 3; do
-          ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE; run_eval gpu $t $s ) &
-          pids="$pids $!"
+        # SCENARIOS (default 1 2 3) picks the scenarios; SPLIT_FAILURES (e.g. "case1 case2") also
+        # gives each failure a process of its own (ev_gpu_<tasks>_s<n>_<failure>)
+        for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do for s in ${SCENARIOS:-1 2 3}; do
+          for f in ${SPLIT_FAILURES:-""}; do
+            ( XLA_PYTHON_CLIENT_PREALLOCATE=false; export XLA_PYTHON_CLIENT_PREALLOCATE; run_eval gpu $t $s $f ) &
+            pids="$pids $!"
+          done
         done; done
       elif [ -n "${GPU_PAR:-}" ]; then
         for t in ${GPU_TASKS:-${TASKS:-paper hard}}; do

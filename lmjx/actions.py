@@ -13,11 +13,14 @@ straight way up is blocked, by a dog-leg (some joints to their park values first
 rest; `to_park`), whose first leg may pass movable objects at `JAM_MARGIN` when nothing
 keeps the full margin (the arm boxed in by objects a push has moved).  When that too is
 blocked, the action is not offered.  An edge whose start lies within the margins of
-an object, or whose states come within `FIXED_MARGIN` of a fixed obstacle, is not offered
-either; nor, once a scene is set, an edge that does not intersect the target: whose arm
-never sweeps `ACT_DEPTH` into the target's box (the spatial index's cells are a coarse first
-cut; this is the exact test, capsules against the target's box at every state of the edge;
-an edge that only grazes the observed box mostly misses the real one, 2 mm off).
+an object is not offered either.  An edge whose states come within `FIXED_MARGIN` of a fixed
+obstacle is executed only up to its last state before that (`edge_prefixes`; an arm pushing
+the target into the tunnel stops short of the wall instead of giving up the push), and not
+offered when fewer than `MIN_EDGE_STATES` states are left; nor, once a scene is set, is an
+edge that does not intersect the target within what is executed: whose arm never sweeps
+`ACT_DEPTH` into the target's box (the spatial index's cells are a coarse first cut; this is
+the exact test, capsules against the target's box at every executed state; an edge that
+only grazes the observed box mostly misses the real one, 2 mm off).
 
 After an edge the arm often stands inside the margins (it pushed something): the transits
 of the next action then begin with a `retreat` back along that edge until the arm is clear
@@ -52,6 +55,8 @@ NEAR_SPEED = 0.25  # inside the margins the arm moves at this fraction of the tr
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
+MIN_EDGE_STATES = 5  # an edge cut short at a fixed obstacle keeps at least this many states (0.1 s)
+WHOLE = np.iinfo(np.int32).max  # `edge_prefixes` of an edge executed whole (no scene)
 
 
 @dataclass
@@ -112,6 +117,7 @@ class Action:
     transit_steps: int  # the first transit_steps rows move to the edge's start
     via_park: bool  # the transit is not the straight line (through the park pose, or the roadmap)
     route: str = "direct"  # the transit: "direct", "park" (through the park pose) or "roadmap"
+    edge_states: int = -1  # the edge's states executed (fewer than its own where a fixed obstacle cuts it short)
 
     @property
     def duration(self) -> float:
@@ -307,16 +313,22 @@ class TransitPlanner:
         return out
 
     def edges_usable(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
-        """(len(edges),) whether each edge, from its start on, keeps FIXED_MARGIN from the
-        scene's fixed obstacles at every state (the real arm lags its targets: it may end an
-        edge nearer than planned, and its next transit starts there) and, with `acting`,
-        sweeps the arm ACT_DEPTH into the target's box (the scene's first box) at some
-        state (all True without a scene)."""
+        """(len(edges),) whether each edge has a usable part (`edge_prefixes` > 0)."""
+        return self.edge_prefixes(bundle, edges) > 0
+
+    def edge_prefixes(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
+        """(len(edges),) how many of each edge's states an action executes: the states before
+        the first that comes within FIXED_MARGIN of one of the scene's fixed obstacles (the
+        real arm lags its targets: it may end nearer than planned, and its next transit starts
+        there), or all of them; 0 (the edge is not offered) when that part has fewer than
+        MIN_EDGE_STATES states or, with `acting`, never sweeps the arm ACT_DEPTH into the
+        target's box (the scene's first box).  Without a scene every edge is whole
+        (`WHOLE`)."""
         if self.scene is None or not len(edges):
-            return np.ones(len(edges), bool)
+            return np.full(len(edges), WHOLE)
         fixed = ~self.scene.movable
         if not (self.acting or fixed.any()):
-            return np.ones(len(edges), bool)
+            return np.full(len(edges), WHOLE)
         qs = [bundle.edge(int(e), ("q",))["q"] for e in edges]
         q_all = np.concatenate(qs).astype(np.float32)
         # the target and the fixed obstacles only (a program of EDGE_BOXES boxes), exactly
@@ -333,17 +345,21 @@ class TransitPlanner:
             exact = self._edge_kernel.run(q_all[doubt])["box_clearance"][:, : len(keep)]
             rows = np.nonzero(doubt)[0]
             c[np.ix_(rows, keep)] = exact
-        owner = np.repeat(np.arange(len(qs)), [len(q) for q in qs])
-        ok = np.ones(len(edges), bool)
+        lengths = np.array([len(q) for q in qs])
+        first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        owner = np.repeat(np.arange(len(qs)), lengths)
+        k = np.arange(len(owner)) - first[owner]  # each state's index within its edge
+        prefix = lengths.copy()
         if fixed.any():
-            worst = np.full(len(qs), np.inf)
-            np.minimum.at(worst, owner, c[:, fixed].min(axis=1))
-            ok &= worst >= FIXED_MARGIN
+            near = c[:, fixed].min(axis=1) < FIXED_MARGIN
+            np.minimum.at(prefix, owner[near], k[near])
         if self.acting:
+            inside = k < prefix[owner]
             nearest = np.full(len(qs), np.inf)
-            np.minimum.at(nearest, owner, c[:, 0])
-            ok &= nearest <= -ACT_DEPTH
-        return ok
+            np.minimum.at(nearest, owner[inside], c[inside, 0])
+            prefix[nearest > -ACT_DEPTH] = 0
+        prefix[prefix < MIN_EDGE_STATES] = 0
+        return prefix
 
     def action(self, bundle: Bundle, edge: int, q_now: np.ndarray) -> Action | None:
         acts = self.actions(bundle, np.array([edge]), q_now, 1)
@@ -429,7 +445,8 @@ class TransitPlanner:
             i += len(part)
             # the cheapest test first: most edges over a target start where an object stands
             part = part[~self.blocked(bundle.q_start[part].astype(np.float64))]
-            part = part[self.edges_usable(bundle, part)] if len(part) else part
+            prefix = self.edge_prefixes(bundle, part) if len(part) else np.zeros(0, int)
+            part, prefix = part[prefix > 0], prefix[prefix > 0]
             if not len(part):
                 continue
             starts = bundle.q_start[part].astype(np.float64)
@@ -446,7 +463,9 @@ class TransitPlanner:
             for j in ok:
                 route = "direct" if direct[j] is not None else "park" if j in via else "roadmap"
                 transit = {"direct": direct, "park": via, "roadmap": road}[route][j]
-                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route))
+                out.append(
+                    _action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route, int(prefix[j]))
+                )
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
@@ -517,10 +536,12 @@ class TransitPlanner:
         return out
 
 
-def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, route: str) -> Action:
+def _action(
+    bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, route: str, states_used: int = WHOLE
+) -> Action:
     states = bundle.edge(edge, ("q", "qd"))
-    q_edge = states["q"].astype(np.float64)
-    qd_edge = states["qd"].astype(np.float64)
+    q_edge = states["q"][:states_used].astype(np.float64)
+    qd_edge = states["qd"][:states_used].astype(np.float64)
     qd_transit = np.gradient(np.concatenate([q_now[None], transit]), CONTROL_DT, axis=0)[1:]
     return Action(
         edge=edge,
@@ -529,6 +550,7 @@ def _action(bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, r
         transit_steps=len(transit),
         via_park=route != "direct",
         route=route,
+        edge_states=len(q_edge),
     )
 
 

@@ -112,6 +112,7 @@ class StepRecord:
     transit_hit_fixed: bool = False
     transit_left: tuple[str, ...] = ()
     transit_route: str = ""  # "direct", "park" or "roadmap" (`Action.route`)
+    edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
 
     def summary(self) -> dict:
         return {
@@ -125,6 +126,7 @@ class StepRecord:
             "transit_hit_fixed": self.transit_hit_fixed,
             "transit_left": list(self.transit_left),
             "transit_route": self.transit_route,
+            "edge_states": self.edge_states,
         }
 
 
@@ -411,7 +413,8 @@ class Planner:
             t_before = obs.time
             before = obs.objects[0, :2].copy()
             obs = yield Execute(action)
-            self.came_from = self.bundle.edge(action.edge, ("q",))["q"]
+            # the edge's states it executed (in the map's precision: a whole edge as it is stored)
+            self.came_from = action.q[action.transit_steps :].astype(self.bundle.q_start.dtype)
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
                 self.futile[action.edge] = before
@@ -422,6 +425,7 @@ class Planner:
             rec.transit_hit_fixed = obs.transit_hit_fixed
             rec.transit_left = obs.transit_left
             rec.transit_route = action.route
+            rec.edge_states = action.edge_states
             steps.append(rec)
             if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
                 reason = "target off the table"

@@ -348,9 +348,11 @@ def arm_clearance_fn(robot, scene, d):
 def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     """Every configuration of every offered transit keeps its margins to the scene, by C
     MuJoCo's mj_geomDistance (movable objects at their observed poses: OBJECT_MARGIN; the
-    tunnel: FIXED_MARGIN), the edge's start included; an offered edge's states keep
-    FIXED_MARGIN from a fixed obstacle too; and edges whose start lies against an object are not offered."""
-    from lmjx.actions import ACT_DEPTH, FIXED_MARGIN, OBJECT_MARGIN
+    tunnel: FIXED_MARGIN), the edge's start included; an offered edge's executed states keep
+    FIXED_MARGIN from a fixed obstacle too (an edge is cut short before its first state that
+    does not, and kept only with MIN_EDGE_STATES states left); edges whose start lies against
+    an object are not offered; acting edges act within their executed states."""
+    from lmjx.actions import ACT_DEPTH, FIXED_MARGIN, MIN_EDGE_STATES, OBJECT_MARGIN
     from lmjx.planner import edges_over_target
 
     m = load_map(plan_map)
@@ -375,15 +377,21 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
             assert clearance(q, fixed) >= FIXED_MARGIN - 1e-4
         for q in a.q[a.transit_steps :: 3]:
             assert clearance(q, fixed) >= FIXED_MARGIN - 1e-4
+        whole = m.edges.edge(a.edge)["q"]
+        assert a.edge_states == len(a.q) - a.transit_steps >= MIN_EDGE_STATES
+        np.testing.assert_array_equal(a.q[a.transit_steps :], whole[: a.edge_states])
+        if a.edge_states < len(whole):  # cut short exactly where the edge first comes near a fixed obstacle
+            assert fixed and clearance(whole[a.edge_states], fixed) < FIXED_MARGIN + 1e-4
+            assert clearance(a.q[-1], fixed) >= FIXED_MARGIN - 1e-4
     refused = [int(e) for e in edges if int(e) not in {a.edge for a in acts}]
     starts_against = [e for e in refused if clearance(m.edges.edge(e)["q"][0], movable) < OBJECT_MARGIN]
     assert starts_against  # such edges exist over the target, and none is offered
     # acting: of those, exactly the edges whose arm sweeps ACT_DEPTH into the target's box
     tp.set_scene(sc, objects)
     acting = {a.edge for a in tp.actions(m.edges, edges, tp.park, len(edges))}
-    assert acting < {a.edge for a in acts} and (acting or number == 2)  # the tunnel: none on this map
+    assert acting < {a.edge for a in acts} and (acting or number == 2)  # the tunnel: few, if any, on this map
     for a in acts:
-        nearest = min(clearance(q, movable[:1]) for q in m.edges.edge(a.edge)["q"])
+        nearest = min(clearance(q, movable[:1]) for q in a.q[a.transit_steps :])
         assert (nearest <= -ACT_DEPTH + 1e-4) if a.edge in acting else (nearest >= -ACT_DEPTH - 1e-4)
 
 
