@@ -147,6 +147,7 @@ def evaluate(
                     "execution_s": round(res.execution_s, 3),
                     "final_distance_m": round(res.final_distance, 4),
                     "end": res.reason,
+                    "stopped": res.stopped,
                     "sim": config.backend if a != "random" else "none",
                     "candidates": config.planner.greedy_candidates if a == "greedy" else None,
                     "asm_settings": config.planner.settings(),
@@ -195,10 +196,13 @@ def simulator_description(name: str) -> str:
 
 def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:
     rows = summarize(records)
+    planned = config.trials * len(config.failures) * len(config.scenarios) * len(config.asms)
     lines = [
         "# lmjx evaluation" + (f": {robot.profile.description or robot.key}" if robot is not None else ""),
         "",
-        f"{len(records)} trials ({config.trials} per cell), task set '{config.tasks}', simulator {simulator}; "
+        f"{len(records)} trials ({config.trials} per cell"
+        + (f"; a partial run: {planned - len(records)} of {planned} not run yet" if len(records) < planned else "")
+        + f"), task set '{config.tasks}', simulator {simulator}; "
         f"planner: greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} "
         f"tries, at most {_budget(config)} actions per task.",
         "",
@@ -230,7 +234,7 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
     for (f, sc, a), rs in _cells(records):
         ends: dict[str, int] = {}
         for r in rs:
-            ends[r["end"]] = ends.get(r["end"], 0) + 1
+            ends[_end_label(r)] = ends.get(_end_label(r), 0) + 1
         acts = [x for r in rs for x in r.get("steps", [])]
         moved = [x for x in acts if x.get("target_moved_m") is not None]
         lines.append(
@@ -245,6 +249,15 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
 
 def _budget(config: EvalConfig) -> int:
     return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
+
+
+def _end_label(r: dict) -> str:
+    """How a trial ended, for the report: 'goal' for every success (records written before the
+    'stopped' field kept the planner's reason as their end), with what stopped the planner when
+    that differs (it stops only once the observed target is `goal_margin` inside the goal)."""
+    end = "goal" if r["success"] else r["end"]
+    stopped = r.get("stopped") or r["end"]
+    return end if stopped == end else f"{end} (then {stopped})"
 
 
 def _share(n: int, d: int) -> str:

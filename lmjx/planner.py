@@ -142,7 +142,10 @@ class TrialResult:
     execution_s: float
     final_distance: float
     steps: list[StepRecord] = field(default_factory=list)
-    reason: str = ""
+    reason: str = ""  # how the trial ended: "goal" whenever the target ends in the goal (success)
+    stopped: str = ""  # what stopped the planner (one of ENDS): it stops once the observed target
+    # is `goal_margin` inside the goal, so a target that ended in the goal but nearer its edge
+    # shows here what came next (e.g. "no feasible transit")
 
     def summary(self) -> dict:
         return {
@@ -152,6 +155,7 @@ class TrialResult:
             "execution_s": round(self.execution_s, 3),
             "final_distance_m": round(self.final_distance, 4),
             "end": self.reason,
+            "stopped": self.stopped or self.reason,
         }
 
     def action_records(self) -> list[dict]:
@@ -442,7 +446,8 @@ class Planner:
             execution_s=obs.time,
             final_distance=float(goal_distance(self.sc, truth[0, :2])),
             steps=steps,
-            reason=reason,
+            reason="goal" if success else reason,
+            stopped=reason,
         )
 
     def _timed_decision(self, obs: Observation, rng: np.random.Generator):
