@@ -193,6 +193,8 @@ def check_suffix(path: str | Path, option: str, suffixes: Sequence[str], what: s
     """Refuse an output file whose extension names another format than the one written."""
     from ..errors import ConfigError
 
+    if Path(path).is_dir():
+        return  # the path check says what is wrong with that
     if Path(path).suffix.lower() not in suffixes:
         raise ConfigError(f"{option} {path}: {what}; give a name ending in {' or '.join(suffixes)}")
 
