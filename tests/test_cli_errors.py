@@ -37,6 +37,9 @@ def test_version():
 
 def test_device_gpu_without_a_gpu(tmp_path):
     # in this process JAX already runs on the CPU: refused before any work, the platform left as it was
+    import jax
+
+    jax.devices()  # started on the CPU (were it started by the command, it would start on no platform)
     for args in (("build-map", "--failure", "case2", "--out", tmp_path / "m.h5"),
                  ("plan", "--map", tmp_path / "m.h5", "--scenario", "1", "--asm", "random")):  # fmt: skip
         cli(*args, "--device", "gpu").one_line_error("no GPU is available to JAX")
