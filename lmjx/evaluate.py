@@ -339,6 +339,7 @@ def plots(records: list[dict], out: Path) -> None:
             if drawn:
                 ax.legend(fontsize=8)
             else:
+                ax.set_xticks([])
                 ax.set_yticks([])
                 ax.text(0.5, 0.5, "no trial succeeded", transform=ax.transAxes, ha="center", va="center",
                         fontsize=9, color="0.4")  # fmt: skip
