@@ -31,6 +31,7 @@ import itertools
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -272,8 +273,10 @@ def build_atlas(
     out: str | Path,
     progress: bool = True,
     sharded: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> AtlasState:
-    """Compute (or finish) the atlas into `out`."""
+    """Compute (or finish) the atlas into `out`; `say` is told in one line when an earlier
+    run's maps are kept (a resumed run)."""
     import jax
 
     config.validate(robot)
@@ -293,6 +296,8 @@ def build_atlas(
                     "choose another --out or remove it"
                 )
             st = old
+            if say is not None and st.done.any():
+                say(f"resuming the atlas kept in {src}: {int(st.done.sum())} of {st.n} maps already computed")
             break
     if jax.process_count() > 1:  # everyone follows process 0's record of what is done
         from jax.experimental import multihost_utils

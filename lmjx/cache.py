@@ -14,6 +14,8 @@ caching off (JAX then compiles every run; Warp keeps its own default cache).  A
 from __future__ import annotations
 
 import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 ENV = "LMJX_CACHE_DIR"
@@ -30,17 +32,29 @@ def cache_dir(choice: str | None = None) -> Path | None:
     return Path(base) / "lmjx"
 
 
-def configure(choice: str | None = None) -> Path | None:
+def configure(choice: str | None = None, warn: Callable[[str], None] | None = None) -> Path | None:
     """Point JAX (through its environment variables, before JAX starts) and Warp (through
-    `LMJX_CACHE_DIR`, read when the GPU simulator starts Warp) at the cache folder."""
+    `LMJX_CACHE_DIR`, read when the GPU simulator starts Warp) at the cache folder.
+
+    A folder that cannot be written is not an error: `warn` is told in one line and caching
+    is turned off for this run (everything still runs, compiling again)."""
     folder = cache_dir(choice)
     if folder is None:
         os.environ[ENV] = OFF
         return None
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return None  # an unwritable cache is not an error: everything still runs, slower
+        (folder / "jax").mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe.", dir=folder / "jax")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        if warn is not None:
+            warn(
+                f"cannot write the compile cache in {folder} ({e.strerror or type(e).__name__}); running without "
+                "it (compiling again): give --cache-dir a writable folder, or --cache-dir off"
+            )
+        os.environ[ENV] = OFF
+        return None
     os.environ[ENV] = str(folder)
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(folder / "jax"))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", MIN_COMPILE_SECONDS)

@@ -273,6 +273,12 @@ def _build_map(
     size = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
     done = saved_chunks(folder) if lead else []
     todo = missing_ranges(done, n, size) if lead else []
+    if lead and (done or reach is not None):
+        kept = sum(b - a for a, b in done)
+        say(
+            f"resuming the build kept in {folder}: {kept:,} of {n:,} edges already computed"
+            f"{' (and the reach map)' if reach is not None else ''}"
+        )
     if jax.process_count() > 1:  # everyone follows process 0's record of what is left
         from jax.experimental import multihost_utils
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,9 +87,15 @@ def _load_results(path: Path) -> list[dict]:
 
 
 def evaluate(
-    robot: Robot, maps: dict[str, MapFile], config: EvalConfig, out: Path, progress: bool = True
+    robot: Robot,
+    maps: dict[str, MapFile],
+    config: EvalConfig,
+    out: Path,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
 ) -> list[dict]:
-    """Run every missing trial; return all records (also in out/results.json).
+    """Run every missing trial; return all records (also in out/results.json); `say` is told
+    in one line when trials of an earlier run are kept (a resumed run).
 
     The trials of a scenario run together (`lmjx.lockstep`): on a GPU their candidates are
     simulated in shared batches, and executions run on all cores; each trial makes the
@@ -117,6 +124,8 @@ def evaluate(
     ]
     rank = {k: i for i, k in enumerate(todo)}
     todo = [k for k in todo if k not in done]
+    if say is not None and len(todo) < len(rank) and done:
+        say(f"resuming: {len(rank) - len(todo)} of {len(rank)} trials already in {results_path}")
     bar = Progress(total=len(todo), desc="trials", enabled=progress, unit="trial")
     threads = os.cpu_count() or 1
     for s in sorted({k[1] for k in todo}):
@@ -276,6 +285,8 @@ def _cells(records: list[dict]) -> list[tuple[tuple, list[dict]]]:
 
 
 def plots(records: list[dict], out: Path) -> None:
+    """bubble.png (success and task time per cell) and actions.png (actions to complete, per
+    ASM, over the successful trials); both hold up when few or no trials succeed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -287,35 +298,43 @@ def plots(records: list[dict], out: Path) -> None:
     asms = [a for a in ASMS if any(r["asm"] == a for r in rows)]
     times = [r["task_s_mean"] for r in rows]
     vmin, vmax = (min(times), max(times)) if times else (0, 1)
-    fig, axes = plt.subplots(1, len(failures), figsize=(5.5 * len(failures), 4), squeeze=False)
+    if vmax <= vmin:
+        vmax = vmin + 1.0
+    fig, axes = plt.subplots(
+        1, max(1, len(failures)), figsize=(5.5 * max(1, len(failures)), 4.4), squeeze=False, layout="constrained"
+    )
     for ax, f in zip(axes[0], failures, strict=True):
+        sc = None
         for r in rows:
             if r["failure"] != f:
                 continue
             x, y = scenarios.index(r["scenario"]), asms.index(r["asm"])
-            sc = ax.scatter(
-                x, y, s=60 + 2400 * r["success_rate"], c=[r["task_s_mean"]], cmap="RdYlGn_r", vmin=vmin, vmax=vmax,
-                edgecolors="black",
-            )  # fmt: skip
-            ax.annotate(f"{r['success_rate'] * 100:.0f}%", (x, y), ha="center", va="center", fontsize=9)
+            size = 60 + 2400 * r["success_rate"]
+            sc = ax.scatter(x, y, s=size, c=[r["task_s_mean"]], cmap="RdYlGn_r", vmin=vmin, vmax=vmax,
+                            edgecolors="black")  # fmt: skip
+            # beside the circle (its radius is sqrt(size)/2 points), not on it
+            ax.annotate(f"{r['success_rate'] * 100:.0f}%", (x, y), xytext=(np.sqrt(size) / 2 + 3, 0),
+                        textcoords="offset points", ha="left", va="center", fontsize=9)  # fmt: skip
         ax.set_xticks(range(len(scenarios)), [f"scenario {s}" for s in scenarios])
         ax.set_yticks(range(len(asms)), asms)
-        ax.set_xlim(-0.6, len(scenarios) - 0.4)
+        ax.set_xlim(-0.6, len(scenarios) - 0.2)
         ax.set_ylim(-0.6, len(asms) - 0.4)
         ax.set_title(f"failure {f}")
-        fig.colorbar(sc, ax=ax, label="mean task time [s]")
-    fig.suptitle("Success (circle size) and task time (colour) per action selection mechanism")
-    fig.tight_layout()
+        if sc is not None:
+            fig.colorbar(sc, ax=ax, label="mean task time [s]")
+    fig.suptitle("Success (circle size, share beside it) and task time (colour) per action selection mechanism")
     with atomic_path(out / "bubble.png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
     fig, axes = plt.subplots(
-        len(failures), len(scenarios), figsize=(4 * len(scenarios), 3 * len(failures)), squeeze=False
-    )
+        max(1, len(failures)), max(1, len(scenarios)), figsize=(4 * max(1, len(scenarios)),
+        3 * max(1, len(failures))), squeeze=False, layout="constrained",
+    )  # fmt: skip
     for i, f in enumerate(failures):
         for j, s in enumerate(scenarios):
             ax = axes[i][j]
+            drawn = False
             for a in asms:
                 n = [
                     r["actions"]
@@ -323,21 +342,20 @@ def plots(records: list[dict], out: Path) -> None:
                     if (r["failure"], r["scenario"], r["asm"], r["success"]) == (f, s, a, True)
                 ]
                 if n:
-                    ax.hist(
-                        n,
-                        bins=np.arange(0.5, max(n) + 1.5),
-                        histtype="step",
-                        density=True,
-                        label=a,
-                        linewidth=1.8,
-                        color=ASM_COLORS.get(a),
-                    )
+                    ax.hist(n, bins=np.arange(0.5, max(n) + 1.5), histtype="step", density=True, label=a,
+                            linewidth=1.8, color=ASM_COLORS.get(a))  # fmt: skip
+                    drawn = True
             ax.set_title(f"{f}, scenario {s}", fontsize=10)
             ax.set_xlabel("actions to complete")
             if j == 0:
                 ax.set_ylabel("density")
-            ax.legend(fontsize=8)
-    fig.tight_layout()
+            if drawn:
+                ax.legend(fontsize=8)
+            else:
+                ax.set_xticks([])
+                ax.set_yticks([])
+                ax.text(0.5, 0.5, "no trial succeeded", transform=ax.transAxes, ha="center", va="center",
+                        fontsize=9, color="0.4")  # fmt: skip
     with atomic_path(out / "actions.png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -1,5 +1,6 @@
 """Figures: the Reach-Ability heatmap (raw and smoothed side by side) and the lock-search
-grid.  Matplotlib with the Agg backend; files are written atomically."""
+grid.  Matplotlib with the Agg backend, in the format the caller names (the command line
+takes it from the file's extension); files are written atomically."""
 
 from __future__ import annotations
 
@@ -19,8 +20,9 @@ from .reach import NPM, PM, UNREACHABLE, ReachResult
 COLORS = {UNREACHABLE: "#d9d9d9", NPM: "#56B4E9", PM: "#009E73"}
 
 
-def reach_heatmap(result: ReachResult, path: str | Path) -> None:
-    """Write a PNG of the raw and smoothed labels over the table, robot base marked."""
+def reach_heatmap(result: ReachResult, path: str | Path, fmt: str = "png") -> None:
+    """Write a figure (`fmt`: a matplotlib format, png by default) of the raw and smoothed
+    labels over the table, robot base marked."""
     cmap = ListedColormap([COLORS[UNREACHABLE], COLORS[NPM], COLORS[PM]])
     cell = result.config.cell
     x0, x1 = result.xs[0] - cell / 2, result.xs[-1] + cell / 2
@@ -56,7 +58,7 @@ def reach_heatmap(result: ReachResult, path: str | Path) -> None:
     fig.legend(handles=handles, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.06), frameon=False)
     fig.suptitle(f"Reach-Ability map, failure {result.failure.describe()}, {cell * 100:g} cm cells")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format=fmt)
     plt.close(fig)
 
 
@@ -68,8 +70,9 @@ def lock_search_plot(
     names: tuple[str, str],
     chosen: tuple[float, float] | None,
     path: str | Path,
+    fmt: str = "png",
 ) -> None:
-    """Heatmaps of PM and NPM+PM area over a 2-D grid of lock angles."""
+    """Heatmaps of PM and NPM+PM area over a 2-D grid of lock angles (`fmt`: a matplotlib format)."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
     for ax, data, title in ((axes[0], pm, "PM area [m²]"), (axes[1], npm_pm, "NPM+PM area [m²]")):
         im = ax.imshow(
@@ -97,5 +100,5 @@ def lock_search_plot(
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(f"Lock search over ({names[0]}, {names[1]}); red: the chosen lock")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+        fig.savefig(tmp, dpi=110, format=fmt)
     plt.close(fig)

@@ -1,13 +1,27 @@
-"""Progress bars on stderr for long work (tqdm), off when disabled or when stderr is not a
-terminal, unless LMJX_PROGRESS=1 forces them on."""
+"""Progress on stderr for long work: a tqdm bar on a terminal; where stderr is a file or a
+pipe (a log, CI, a job scheduler), a plain line every LINE_SECONDS at most, as tqdm does
+when it is not on a terminal, but one line each time rather than carriage returns.
+LMJX_PROGRESS=0 turns progress off; LMJX_PROGRESS=1 forces the bar even off a terminal."""
 
 from __future__ import annotations
 
 import os
 import sys
 import threading
+import time
 
 from tqdm import tqdm
+
+ENV = "LMJX_PROGRESS"
+LINE_SECONDS = 5.0  # off a terminal: a line at most this often (the first after this long)
+
+
+def _rate(n: float, seconds: float, unit: str) -> str:
+    r = n / seconds if seconds > 0 else 0.0
+    for scale, prefix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if r >= scale:
+            return f"{r / scale:.1f}{prefix} {unit}/s"
+    return f"{r:.1f} {unit}/s"
 
 
 class Progress:
@@ -15,29 +29,41 @@ class Progress:
     from several threads."""
 
     def __init__(self, total: int | None, desc: str, enabled: bool = True, unit: str = "IK") -> None:
-        forced = os.environ.get("LMJX_PROGRESS") == "1"
-        on = enabled and (forced or sys.stderr.isatty())
+        setting = os.environ.get(ENV, "").strip()
+        on = enabled and setting != "0"
+        bar = on and (setting == "1" or sys.stderr.isatty())
         self._bar = (
-            tqdm(
-                total=total,
-                desc=desc,
-                unit=unit,
-                unit_scale=True,
-                file=sys.stderr,
-                dynamic_ncols=True,
-                leave=False,
-            )
-            if on
+            tqdm(total=total, desc=desc, unit=unit, unit_scale=True, file=sys.stderr, dynamic_ncols=True, leave=False)
+            if bar
             else None
         )
+        self._lines = on and not bar
+        self.total, self.desc, self.unit = total, desc, unit
+        self.n = 0
+        self._t0 = self._last = time.monotonic()
         self._lock = threading.Lock()
 
     def update(self, n: int) -> None:
         if self._bar is not None:
             with self._lock:
                 self._bar.update(n)
+        elif self._lines:
+            with self._lock:
+                self.n += n
+                now = time.monotonic()
+                if now - self._last >= LINE_SECONDS:
+                    self._last = now
+                    self._line(now)
+
+    def _line(self, now: float) -> None:
+        seconds = now - self._t0
+        done = f"{self.n:,}/{self.total:,} {self.unit}" if self.total else f"{self.n:,} {self.unit}"
+        share = f" ({100 * self.n / self.total:.0f} %)" if self.total else ""
+        print(f"{self.desc}: {done}{share}, {seconds:.0f} s, {_rate(self.n, seconds, self.unit)}", file=sys.stderr)
+        sys.stderr.flush()
 
     def set_description(self, desc: str) -> None:
+        self.desc = desc
         if self._bar is not None:
             self._bar.set_description(desc)
 

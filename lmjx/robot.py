@@ -275,8 +275,8 @@ def check_robot(path: str | Path) -> list[str]:
     try:
         m = mujoco.MjModel.from_xml_path(str(p))
     except Exception as e:  # MuJoCo's own parse and compile errors
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        return [f"MuJoCo cannot load it: {first}"]
+        text = "; ".join(line.strip() for line in str(e).strip().splitlines() if line.strip())
+        return [f"MuJoCo cannot load it: {text or type(e).__name__}"]  # the whole message, on one line
     problems: list[str] = []
     nq = m.njnt
     if nq < 2:

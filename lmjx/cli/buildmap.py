@@ -1,0 +1,139 @@
+"""`lmjx build-map`: a failure's Reach-Ability map and kinodynamic edge bundle in one HDF5
+file (paper Algorithms 1-2), resumable after an interrupt."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TYPE_CHECKING
+
+from .common import (
+    HDF5_SUFFIXES,
+    _add_device,
+    _add_distributed,
+    _add_robot,
+    _emit,
+    _failure_help,
+    _init_distributed,
+    _leave_interrupted,
+    _load_robot,
+    _positive_float,
+    _positive_int,
+    check_suffix,
+)
+
+if TYPE_CHECKING:
+    from ..robot import Robot
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "build-map",
+        help="Reach-Ability map + kinodynamic edge bundle in one HDF5 file (paper Algorithms 1-2)",
+        description="Build a failure's map: the Reach-Ability map, then N Monte Carlo edges: from a reachable cell "
+        "and an interaction point, a constant twist followed for a sampled duration with the arm's dynamics "
+        "(tau = M qdd + C qd + g + friction), rejecting any edge that breaks a position, velocity, acceleration "
+        "or torque limit or collides with the table or itself.  Valid edges are stored with every state and a "
+        "spatial index per cell (schema: maps/README.md).  Any number of edges: they are computed and saved in "
+        "chunks (bounded memory) into <out>.partial, and the map is assembled from them at the end; a preflight "
+        "first says how large and how long; an interrupted build (Ctrl-C, a kill) continues when the same command "
+        "runs again.  Every local accelerator shares the work; several hosts: the same command on each with "
+        "--coordinator HOST:PORT --num-processes N --process-id I.",
+    )
+    p.add_argument("--failure", required=True, help=_failure_help())
+    _add_robot(p)
+    p.add_argument(
+        "--edges",
+        type=_positive_int,
+        help="edges to sample, up to 50,000,000 (default: 10,000 on a CPU, 100,000 on a GPU); only valid ones "
+        "are stored",
+    )
+    p.add_argument(
+        "--out", help="map file to write (.h5; default maps/<failure>.h5; another robot's: maps/<robot>/<failure>.h5)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed for the map and the edges (default 0)")
+    p.add_argument("--cell", type=_positive_float, default=0.02, help="reach cell edge in metres (default 0.02)")
+    p.add_argument(
+        "--chunk",
+        type=_positive_int,
+        help="edges computed and saved at a time (default: by platform); not part of the result",
+    )
+    p.add_argument("--yes", action="store_true", help="start even when the preflight estimates more than a day of work")
+    p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
+    _add_distributed(p)
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+    p.set_defaults(run=cmd_build_map)
+    return p
+
+
+def _default_map_path(spec: str, robot: Robot) -> str:
+    safe = "".join(c if c.isalnum() or c in "-." else "_" for c in spec)
+    return f"{robot.maps_dir}/{safe}.h5"
+
+
+def cmd_build_map(args: argparse.Namespace) -> int:
+    from ..bundle import BundleConfig
+    from ..edgestream import build_map, partial_path
+    from ..failure import parse_failure
+    from ..reach import reach_config
+
+    if args.out:
+        check_suffix(args.out, "--out", HDF5_SUFFIXES, "the map is written as HDF5")
+    _init_distributed(args)
+    import jax
+
+    robot = _load_robot(args)
+    failure = parse_failure(args.failure, robot)
+    reach_cfg = reach_config(robot, cell=args.cell, seed=args.seed)
+    bundle_cfg = BundleConfig(
+        edges=args.edges, seed=args.seed, build_chunk=args.chunk, interaction_points=robot.default_ips
+    )
+    out = args.out or _default_map_path(failure.spec, robot)
+    lead = jax.process_index() == 0
+    try:
+        s = build_map(
+            out, failure, reach_cfg, bundle_cfg, robot, progress=True, sharded=not args.no_shard, yes=args.yes,
+            say=lambda line: print(line, file=sys.stderr),
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        _leave_interrupted(
+            f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
+            f"{partial_path(out)}: rerun the same command to continue (it resumes where this one stopped)"
+        )
+    if not lead:
+        return 0
+    from ..mapfile import load_map
+
+    m = load_map(out, robot, lazy=True)
+    reach = m.reach
+    assert reach is not None
+    summary = {
+        "robot": robot.key,
+        "failure": failure.spec,
+        "out": out,
+        "seed": args.seed,
+        "reach": {k: reach.summary()[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")},
+        "edges": {k: v for k, v in s.items() if k not in ("bytes_per_state", "raw_bytes_per_state")},
+        "bytes_per_state": round(s.get("bytes_per_state", 0.0), 2),
+        "raw_bytes_per_state": round(s.get("raw_bytes_per_state", 0.0), 2),
+        "device": s["device"],
+        "devices": s["devices"],
+        "processes": s["processes"],
+    }
+    m.close()
+    rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)
+    lines = [
+        f"{robot.key}, failure {failure.describe()} on {s['device']} ({s['devices']} device(s), "
+        f"{s['processes']} process(es)): "
+        f"map written to {out}",
+        f"  reach: PM {reach.areas()['pm']:.4f} m^2, NPM+PM {reach.areas()['npm_pm']:.4f} m^2 ({reach.seconds:.2f} s)",
+        f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
+        f"  rollouts: {s['edge_steps']:,} edge-steps in {s['rollout_seconds']:.2f} s "
+        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile "
+        f"(of which writing the map alongside {s['write_seconds']:.1f} s, its index {s['finish_seconds']:.1f} s)",
+        f"  storage: {summary['bytes_per_state']:.1f} bytes per stored state "
+        f"({summary['raw_bytes_per_state']:.0f} uncompressed)",
+    ]
+    _emit(args, summary, lines)
+    return 0

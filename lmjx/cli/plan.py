@@ -1,0 +1,156 @@
+"""`lmjx plan`: one manipulation task with simulation in the loop (paper Algorithm 3), and
+the planner's options that `lmjx evaluate` shares."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TYPE_CHECKING
+
+from .common import _add_device, _add_robot, _emit, _load_robot, _positive_int
+
+if TYPE_CHECKING:
+    from ..planner import PlannerConfig
+
+
+def _add_sim(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--sim",
+        choices=("auto", "cpu", "cpu-near", "gpu"),
+        default="auto",
+        help="the planner's simulator: gpu (MuJoCo Warp on a CUDA GPU, the whole scene), cpu (C MuJoCo on all "
+        "host cores, the whole scene), cpu-near (C MuJoCo, only the target and its 3 nearest objects) or auto "
+        "(default: gpu where a CUDA GPU and warp-lang are present, else cpu); the choice is printed on stderr "
+        "and given in --json",
+    )
+
+
+def _add_planner_options(p: argparse.ArgumentParser) -> None:
+    """The planner's options, shared by plan and evaluate."""
+    p.add_argument(
+        "--tasks",
+        choices=("paper", "hard"),
+        default="paper",
+        help="the task set: paper (default; goal regions, distances and budget calibrated to the paper's reported "
+        "outcomes, docs/EVALUATION.md) or hard (goals 22-28 cm away: tasks where choosing by simulation matters)",
+    )
+    p.add_argument(
+        "--max-actions", type=_positive_int, help="action budget per task (default: the task set's, 30 actions)"
+    )
+    p.add_argument(
+        "--candidates",
+        type=_positive_int,
+        help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
+    )
+    p.add_argument(
+        "--asm-settings",
+        choices=("lmjx", "paper"),
+        default="lmjx",
+        help="lmjx (default): with lmjx's refinements (edges that failed are not offered again while the "
+        "target stays put, the path length around obstacles as the score, Lazy capped at 32 tries and "
+        "taking its best when none helps); paper: the ASMs as the paper states them (none of these; Greedy "
+        "simulates a quarter of the edges over the target)",
+    )
+    _add_sim(p)
+
+
+def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
+    """The planner's simulator for --sim, announced on stderr."""
+    from ..trial import resolve_simulator
+
+    name, why = resolve_simulator(args.sim)
+    print(f"lmjx {args.command}: simulator {name} ({why})", file=sys.stderr)
+    return name, why
+
+
+def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
+    from ..planner import PlannerConfig
+    from ..trial import DEFAULT_CANDIDATES
+
+    config = PlannerConfig(
+        asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or DEFAULT_CANDIDATES[sim]
+    )
+    return config.paper() if args.asm_settings == "paper" else config
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "plan",
+        help="one manipulation task with simulation in the loop (paper Algorithm 3)",
+        description="Push the target cube of a scenario into its goal region using the edges of a map, choosing "
+        "each action with an action selection mechanism (random, lazy or greedy) and executing it in a simulated "
+        "'real' world whose physics differ from the planner's.  The times printed: planning is wall-clock time "
+        "here; robot time is the simulated time the arm spends executing the actions.",
+    )
+    p.add_argument("--map", required=True, help="a map file from lmjx build-map")
+    p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
+    p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
+    p.add_argument("--failure", help="refuse the map unless it was built for this failure")
+    _add_robot(p, from_map=True)
+    p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
+    _add_planner_options(p)
+    p.add_argument("--render", help="write a rendering of the trial: .png (frame strip), .gif or .mp4")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    _add_device(p)
+    p.set_defaults(run=cmd_plan)
+    return p
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from ..errors import ConfigError
+    from ..failure import parse_failure
+    from ..fileio import check_writable
+    from ..mapfile import load_map
+    from ..trial import make_simulator, run_trial, setup_trial
+
+    m = load_map(args.map, _load_robot(args) if args.robot else None)  # None: the robot the map names
+    robot = m.robot
+    assert robot is not None
+    if args.failure is not None and parse_failure(args.failure, robot).locked != m.failure.locked:
+        raise ConfigError(f"{args.map} holds a map of failure {m.failure.spec}, not {args.failure}")
+    if m.edges is None:
+        raise ConfigError(f"{args.map} has no edges; build it with: lmjx build-map --failure {m.failure.spec}")
+    if args.render:
+        from ..render import check_render_path
+
+        check_render_path(args.render)
+        check_writable(args.render, "rendering")
+    sim_name, why = _resolve_sim(args) if args.asm != "random" else ("none", "random does not simulate")
+    config = _planner_config(args, args.asm, sim_name if sim_name != "none" else "cpu")
+    sim = make_simulator(robot, args.scenario, sim_name, args.tasks) if sim_name != "none" else None
+    setup = setup_trial(robot, m, args.scenario, config, args.seed, simulator=sim, tasks=args.tasks)
+    recorder = None
+    if args.render:
+        from ..render import Recorder
+
+        recorder = Recorder(setup.world)
+    res = run_trial(setup)
+    if recorder is not None:
+        recorder.write(args.render)
+    summary = {
+        "robot": robot.key,
+        "failure": m.failure.spec,
+        "tasks": args.tasks,
+        "scenario": args.scenario,
+        "asm": args.asm,
+        "seed": args.seed,
+        "simulator": sim_name,
+        "simulator_reason": why,
+        "simulator_description": sim.description if sim is not None else None,
+        "candidates": config.greedy_candidates if args.asm == "greedy" else None,
+        "asm_settings": config.settings(),
+        **res.summary(),
+        "steps": [s.summary() for s in res.steps],
+    }
+    lines = [
+        f"failure {m.failure.spec}, scenario {args.scenario} ({args.tasks} tasks), {args.asm}, seed {args.seed}: "
+        f"{'success' if res.success else 'failure'} ({res.reason}) after {res.actions} actions",
+        f"  planning {res.planning_s:.1f} s (wall clock), robot time {res.execution_s:.1f} s (simulated execution), "
+        f"target {res.final_distance * 100:.1f} cm from the goal's centre",
+    ]
+    if sim is not None:
+        lines.append(f"  simulator: {sim.description}")
+    if args.render:
+        lines.append(f"  rendering written to {args.render}")
+    _emit(args, summary, lines)
+    return 0

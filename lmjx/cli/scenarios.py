@@ -1,0 +1,57 @@
+"""`lmjx scenarios`: each evaluation scenario's description and picture (a MuJoCo rendering
+beside a top-down diagram; the diagram alone where there is no OpenGL)."""
+
+from __future__ import annotations
+
+import argparse
+
+from .common import _add_robot, _load_robot
+
+# Set by `lmjx.cli.main` when MUJOCO_GL named an OpenGL that is not installed (and was unset).
+gl_note: str | None = None
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "scenarios",
+        help="pictures and descriptions of the three evaluation scenarios",
+        description="Print each scenario's description and write <out>/scenario<N>.png: a MuJoCo rendering of the "
+        "scene (the arm at its park pose for case2, or for no failure if the robot has no case2) beside a top-down "
+        "diagram of the layout; the scenarios sit where they do for the Panda, scaled to the robot's size.  "
+        "Rendering needs OpenGL "
+        "(on a headless machine: MUJOCO_GL=osmesa with OSMesa installed, or MUJOCO_GL=egl on a GPU); without it "
+        "only the diagram is drawn.",
+    )
+    p.add_argument("--out", default=".", help="folder for the pictures (default: the current folder)")
+    p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
+    p.add_argument("--tasks", choices=("paper", "hard"), default="paper", help="the task set (default paper)")
+    _add_robot(p)
+    p.set_defaults(run=cmd_scenarios)
+    return p
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    import sys
+    from pathlib import Path
+
+    from ..actions import park_pose
+    from ..failure import parse_failure
+    from ..fileio import check_writable
+    from ..render import gl_problem
+    from ..scenario_figure import scenario_picture
+    from ..scenarios import SCENARIOS, sample_layout, scenario
+
+    out = Path(args.out)
+    check_writable(out / "scenario1.png", "pictures")
+    robot = _load_robot(args)
+    problem = gl_note or gl_problem()
+    if problem is not None:
+        print(f"note: drawing the diagrams only: {problem}", file=sys.stderr)
+    q = park_pose(robot, parse_failure("case2" if "case2" in robot.profile.presets else "none", robot))
+    for n in sorted(SCENARIOS):
+        sc = scenario(n, robot.profile.task_scale, args.tasks)
+        path = out / f"scenario{n}.png"
+        scenario_picture(robot, sc, sample_layout(sc, args.seed), q, path, with_render=problem is None)
+        head = f"scenario {n} ({args.tasks} tasks, {sc.budget} actions): {sc.title}"
+        print(f"{head}\n  {sc.description}\n  picture: {path}")
+    return 0
