@@ -145,6 +145,14 @@ class Robot:
     def site_index(self, name: str) -> int:
         return self.site_names.index(name)
 
+    def __repr__(self) -> str:
+        presets = ", ".join(["none", *self.profile.presets])
+        ips = ", ".join(self.interaction_points)
+        return (
+            f"Robot({self.key!r}: {self.name}, {self.nq} joints, failures {presets}; interaction points {ips}; "
+            f"model {self.model_hash[:12]})"
+        )
+
 
 def _numeric(m: mujoco.MjModel, name: str) -> np.ndarray:
     return np.array(m.numeric(name).data, dtype=np.float64)
@@ -266,6 +274,16 @@ def resolve_robot(name_or_path: str | Path | None = None) -> tuple[str, Path]:
             return key, ROBOTS[key]
         return str(p), p
     raise ConfigError(f"unknown robot '{text}'; the shipped robots are {', '.join(ROBOTS)}, or give an MJCF's path")
+
+
+def as_robot(robot: Robot | str | Path | None = None) -> Robot:
+    """The robot an argument names: a `Robot` as it is, a shipped robot's name ("panda", the
+    default for None; "ur5e") or an MJCF's path (loaded once, see `load_robot`)."""
+    if isinstance(robot, Robot):
+        return robot
+    if robot is not None and not isinstance(robot, str | Path):
+        raise ConfigError(f"a robot is a name ({', '.join(ROBOTS)}), an MJCF's path or a Robot, not {robot!r}")
+    return load_robot(robot)
 
 
 def check_robot(path: str | Path) -> list[str]:
