@@ -129,11 +129,11 @@ def build_map(
     result); `yes`: start even when the preflight estimates more than a day of work;
     `say`: where the preflight's lines go (default: nowhere); `progress`: bars on stderr.
 
-    Example (small settings for a quick try: 5 cm cells, 200 edges; a few seconds on a CPU
-    once compiled):
+    Example (small settings for a quick try: 10 cm cells, 200 edges; seconds on a CPU once
+    compiled):
 
     >>> import lmjx
-    >>> b = lmjx.build_map("case2", out="maps/case2_small.h5", cell=0.05, edges=200, seed=0)
+    >>> b = lmjx.build_map("case2", out="maps/case2_small.h5", cell=0.1, edges=200, seed=0)
     >>> b.edges["edges_valid"] > 0
     True
     """

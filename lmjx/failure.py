@@ -92,8 +92,11 @@ def parse_failure(spec: str, robot: Robot | str | None = None) -> Failure:
     """Parse 'none', one of the robot's presets, or a comma list 'J2=0.3,J4=-1.5' (radians).
     `robot`: a Robot, a shipped robot's name or an MJCF's path (default: the Panda).
 
-    >>> parse_failure("case2")
+    >>> import lmjx
+    >>> lmjx.parse_failure("case2")
     Failure('case2': J6=0.935, J7=-0.7193; 5 of 7 joints free)
+    >>> lmjx.parse_failure("J2=0.3,J4=-1.5", "ur5e")
+    Failure('J2=0.3,J4=-1.5': J2=0.3, J4=-1.5; 4 of 6 joints free)
     """
     robot = as_robot(robot)
     text = spec.strip()

@@ -97,8 +97,9 @@ def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | str | 
     computed for (a Robot, a name or an MJCF's path); None: the shipped robot whose model
     the result names.
 
-    >>> res = reach_map("case2", ReachConfig(cell=0.05))
-    >>> write_reach_map("case2_reach.h5", res)
+    >>> import lmjx
+    >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.1))
+    >>> lmjx.write_reach_map("case2_reach.h5", res)
     """
     write_map(path, result, None, robot)
 
@@ -478,9 +479,10 @@ def load_map(
     the one it was built for; None: the shipped robot the file names.  A `with` block
     closes it (a lazily opened map keeps its file open until then).
 
-    >>> m = load_map("maps/case2.h5")      # written by `make run`
-    >>> m.reach.areas(), m.edges.n_edges   # doctest: +SKIP
-    ({'pm': 0.0, 'npm_pm': 0.692}, 2484)
+    >>> import lmjx
+    >>> with lmjx.load_map("maps/case2.h5") as m:   # written by `make run`
+    ...     print(m.reach.areas()["pm"], m.edges.n_edges > 0)
+    0.0 True
 
     The reach map, the per-edge arrays and the spatial index are read at once; the edge
     states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which

@@ -103,10 +103,16 @@ class ReachConfig:
         return default_ik_settings(iterations=self.iterations, cube_half=self.object_height / 2)
 
 
-def reach_config(robot: Robot, **overrides) -> ReachConfig:
-    """The default ReachConfig for `robot`: its default interaction points, and the task plane
-    scaled by its `task_scale` (the Panda's and the UR5e's: 1, the plane above); `overrides`
-    replace any field."""
+def reach_config(robot: Robot | str | Path | None = None, **overrides) -> ReachConfig:
+    """The default ReachConfig for `robot` (a Robot, a name or an MJCF's path; default the
+    Panda): its default interaction points, and the task plane scaled by its `task_scale`
+    (the Panda's and the UR5e's: 1, the plane above); `overrides` replace any field.
+
+    >>> import lmjx
+    >>> lmjx.reach_config("ur5e", cell=0.05)
+    ReachConfig(cell=0.05)
+    """
+    robot = as_robot(robot)
     s = robot.profile.task_scale
     base: dict = {"interaction_points": robot.default_ips}
     if s != 1.0:
@@ -232,9 +238,10 @@ def reach_map(
     the Panda), with `config` (default: the robot's default map, `reach_config(robot)`), as
     `lmjx reach` does.  `progress`: a bar on stderr (a terminal, or LMJX_PROGRESS=1).
 
-    >>> res = reach_map("case2", ReachConfig(cell=0.05))   # a coarse map: a few seconds on a CPU
-    >>> res.areas()                                         # doctest: +SKIP
-    {'pm': 0.0, 'npm_pm': 0.6975}
+    >>> import lmjx
+    >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.1), robot="panda")  # coarse: seconds on a CPU
+    >>> res.areas()["pm"]
+    0.0
     """
     robot = as_robot(robot)
     config = config or reach_config(robot)

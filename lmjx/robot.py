@@ -410,11 +410,16 @@ def robots() -> dict[str, str]:
     return {k: PROFILES[k].description for k in ROBOTS}
 
 
-@functools.lru_cache(maxsize=8)
 def load_robot(name_or_path: str | Path | None = None) -> Robot:
     """Load and cache a robot: a shipped one by name ("panda", the default; "ur5e") or any
-    MJCF that meets the contract by its path (RobotError lists what it lacks)."""
-    key, path = resolve_robot(name_or_path)
+    MJCF that meets the contract by its path (RobotError lists what it lacks).  Every way of
+    naming one robot (None, "panda", the path of its MJCF) gives the same object, so its
+    compiled kernels are shared."""
+    return _load_robot(*resolve_robot(name_or_path))
+
+
+@functools.lru_cache(maxsize=8)
+def _load_robot(key: str, path: Path) -> Robot:
     problems = check_robot(path)
     if problems:
         raise RobotError(path, problems)

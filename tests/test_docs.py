@@ -61,3 +61,32 @@ def test_readme_is_a_first_page() -> None:
     # every link to a file of the repository points at one that exists
     for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", text):
         assert (ROOT / target).exists(), target
+
+
+# Exported functions whose docstring example computes a map: README.md's blocks run the same
+# calls (a map of 10 cm cells; build_map with 200 edges), so they are not run twice here.
+RUN_BY_THE_README = {"reach_map", "write_reach_map", "build_map"}
+
+
+def test_api_docstring_examples_run(docs_dir: Path) -> None:
+    """The runnable example in the docstring of every function the package exports (those
+    that build maps: through README.md's identical blocks)."""
+    import doctest
+
+    import lmjx
+
+    readme = (ROOT / "README.md").read_text()
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+    finder = doctest.DocTestFinder(recurse=False)
+    tried = 0
+    for name in lmjx.__all__:
+        obj = getattr(lmjx, name, None)
+        if not callable(obj) or isinstance(obj, type):
+            continue
+        if name in RUN_BY_THE_README:
+            assert f"lmjx.{name}(" in readme and ">>> " in (obj.__doc__ or ""), name
+            continue
+        for test in finder.find(obj, name, globs={}):
+            tried += len(test.examples)
+            runner.run(test)
+    assert tried > 0 and runner.failures == 0, f"{runner.failures} of {tried} examples failed (see the output)"
