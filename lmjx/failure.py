@@ -3,7 +3,7 @@
 A `Failure` says which joints of an nq-joint arm are locked and at which angles.
 Everything downstream (IK, Jacobians, dynamics) treats locked joints as constants and works
 over `free` only.  The presets of each robot (the Panda's case1 and case2, the UR5e's
-case1 and case2 of its own) live with the robot (`robot.PROFILES`); README.md and docs/ROBOTS.md
+case1 and case2 of its own) live with the robot (`robot.PROFILES`); docs/DETAILS.md and docs/ROBOTS.md
 explain how each was chosen.
 """
 

@@ -53,7 +53,7 @@ class RobotProfile:
     """What lmjx knows of a robot beyond its MJCF."""
 
     # Failure presets: name -> {joint number (1-based): lock angle [rad]}.  docs/ROBOTS.md
-    # and the README say how each was chosen.
+    # and docs/DETAILS.md say how each was chosen.
     presets: dict[str, dict[int, float]] = field(default_factory=dict)
     # The "real" world's joint servo gains (Franka-like impedance); None: from the torque limits.
     real_kp: tuple[float, ...] | None = None
@@ -65,7 +65,7 @@ class RobotProfile:
 
 
 PROFILES: dict[str, RobotProfile] = {
-    # Panda (README, "Failure cases"): case1 from `lmjx lock-search --joints J3,J5 --base
+    # Panda (docs/DETAILS.md, "Failure cases"): case1 from `lmjx lock-search --joints J3,J5 --base
     # J7=0.785398 --grid 7 --match 0.7294,0.9239`; case2 from `lmjx lock-search --joints J6,J7
     # --grid 9`.
     "panda": RobotProfile(
