@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import threading
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -414,8 +415,13 @@ def load_robot(name_or_path: str | Path | None = None) -> Robot:
     """Load and cache a robot: a shipped one by name ("panda", the default; "ur5e") or any
     MJCF that meets the contract by its path (RobotError lists what it lacks).  Every way of
     naming one robot (None, "panda", the path of its MJCF) gives the same object, so its
-    compiled kernels are shared."""
-    return _load_robot(*resolve_robot(name_or_path))
+    compiled kernels are shared (threads included: one loads, the others wait for it)."""
+    key, path = resolve_robot(name_or_path)
+    with _LOADING:
+        return _load_robot(key, path)
+
+
+_LOADING = threading.Lock()
 
 
 @functools.lru_cache(maxsize=8)
