@@ -1,13 +1,27 @@
 """lmjx: keep a robot arm with locked joints useful, with whole-body non-prehensile actions.
 
-Public API (everything else is internal):
-  load_robot(name_or_path)          a robot ('panda', the default; 'ur5e'; or an MJCF's path)
-  robots(), check_robot(path)       the shipped robots; what an MJCF lacks (docs/ROBOTS.md)
-  parse_failure(spec, robot)        'none', one of the robot's presets or 'J2=0.3,J4=-1.5'
-  ReachConfig, reach_map(failure)   the Reach-Ability map (paper Algorithm 1)
-  write_reach_map(path, result)     write a map file (schema: maps/README.md)
-  load_map(path)                    read and validate a map file (its robot from the file)
+Public API (everything else is internal).  Wherever it takes a robot, a name ('panda', the
+default; 'ur5e'), an MJCF's path or a Robot will do; wherever it takes a failure, a spec
+('none', one of the robot's presets such as 'case2', or 'J2=0.3,J4=-1.5') or a Failure.
+
+  load_robot(name_or_path)          a Robot ('panda', 'ur5e' or an MJCF's path; docs/ROBOTS.md)
+  robots(), check_robot(path)       the shipped robots; what an MJCF lacks to be an lmjx robot
+  parse_failure(spec, robot)        a Failure: 'none', a preset or 'J2=0.3,J4=-1.5'
+  ReachConfig, reach_config(robot)  a Reach-Ability map's settings (a robot's defaults)
+  reach_map(failure, config, robot) the Reach-Ability map (paper Algorithm 1) -> ReachResult
+  write_reach_map(path, result)     write it to a map file (what `lmjx reach --out` writes)
+  build_map(failure, robot, out)    a map file: reach map + edge bundle (`lmjx build-map`) -> MapBuild
+  load_map(path)                    read and validate a map file (schema: maps/README.md) -> MapFile
+  plan_task(map_file, scenario)     one task, closed loop (`lmjx plan`, Algorithm 3) -> PlanResult
+  use_device('cpu' | 'gpu')         where JAX runs (`--device`), before the first computation
   LmjxError                         base class of errors caused by user input
+
+Example (small settings for a quick try):
+
+    >>> import lmjx
+    >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.05), robot="panda")
+    >>> res                                            # doctest: +SKIP
+    ReachResult('case2': 24 x 20 cells of 5 cm, PM 0.000 m^2, NPM+PM 0.698 m^2; 3.1 s on cpu)
 
 Names are imported on first use, so that `import lmjx` (and `lmjx --help`) stays light.
 """
@@ -25,13 +39,20 @@ _EXPORTS = {
     "LmjxError": "errors",
     "ReachConfig": "reach",
     "ReachResult": "reach",
+    "reach_config": "reach",
     "reach_map": "reach",
+    "MapFile": "mapfile",
     "load_map": "mapfile",
     "write_reach_map": "mapfile",
     "Robot": "robot",
     "load_robot": "robot",
     "robots": "robot",
     "check_robot": "robot",
+    "MapBuild": "api",
+    "PlanResult": "api",
+    "build_map": "api",
+    "plan_task": "api",
+    "use_device": "api",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]
@@ -41,3 +62,7 @@ def __getattr__(name: str) -> Any:
     if name in _EXPORTS:
         return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
     raise AttributeError(f"module 'lmjx' has no attribute '{name}'")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -34,6 +34,7 @@ from .ik_batch import IKBatch, default_chunk, default_ik_settings
 from .kernels.rollout import REASONS, Limits, RolloutSettings, edge_rollout
 from .progress import Progress
 from .reach import NPM, ReachResult
+from .reprs import config_repr
 from .robot import Robot, load_robot
 
 IK_FAILED = "ik"  # an edge whose start could not be solved
@@ -60,6 +61,8 @@ class BundleConfig:
     seed: int = 0
     chunk: int | None = None  # edges per kernel launch (per device); default by platform
     build_chunk: int | None = None  # edges sampled, rolled out and packed at a time; default by platform
+
+    __repr__ = config_repr
 
     def n_edges(self) -> int:
         return self.edges if self.edges is not None else (100_000 if backend() != "cpu" else 10_000)
@@ -155,6 +158,12 @@ class Bundle:
     @property
     def n_edges(self) -> int:
         return len(self.offset)
+
+    def __repr__(self) -> str:
+        return (
+            f"Bundle({self.failure.spec!r}: {self.n_edges:,} edges of {self.sampled:,} sampled, "
+            f"{int(self.length.sum()):,} states, dt {self.config.dt:g} s, seed {self.config.seed})"
+        )
 
     @property
     def n_states(self) -> int:

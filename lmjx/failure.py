@@ -3,7 +3,7 @@
 A `Failure` says which joints of an nq-joint arm are locked and at which angles.
 Everything downstream (IK, Jacobians, dynamics) treats locked joints as constants and works
 over `free` only.  The presets of each robot (the Panda's case1 and case2, the UR5e's
-case1 and case2 of its own) live with the robot (`robot.PROFILES`); README.md and docs/ROBOTS.md
+case1 and case2 of its own) live with the robot (`robot.PROFILES`); docs/DETAILS.md and docs/ROBOTS.md
 explain how each was chosen.
 """
 
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import FailureSpecError
-from .robot import Robot
+from .robot import Robot, as_robot
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,10 @@ class Failure:
             return self.name
         return ",".join(f"J{j}={a:g}" for j, a in self.locked)
 
+    def __repr__(self) -> str:
+        locks = ", ".join(f"J{j}={a:.4g}" for j, a in self.locked) or "no locked joints"
+        return f"Failure({self.spec!r}: {locks}; {self.nq - len(self.locked)} of {self.nq} joints free)"
+
     def describe(self) -> str:
         if not self.locked:
             return f"{self.name} (no locked joints)"
@@ -68,8 +72,33 @@ def _names(robot: Robot) -> str:
     return ", ".join(["none", *robot.profile.presets])
 
 
-def parse_failure(spec: str, robot: Robot) -> Failure:
-    """Parse 'none', one of the robot's presets, or a comma list 'J2=0.3,J4=-1.5' (radians)."""
+def as_failure(failure: Failure | str, robot: Robot) -> Failure:
+    """The failure an argument names: a spec string (see `parse_failure`) or a `Failure`,
+    checked against `robot` (its joint count and limits)."""
+    if isinstance(failure, Failure):
+        if failure.nq != robot.nq:
+            raise FailureSpecError(
+                f"failure {failure.spec}: made for an arm of {failure.nq} joints, {robot.key} has {robot.nq}"
+            )
+        for j, a in failure.locked:
+            _check_angle(robot, j, a, failure.spec)
+        return failure
+    if not isinstance(failure, str):
+        raise FailureSpecError(f"a failure is a spec such as 'case2' or 'J2=0.3,J4=-1.5' or a Failure, not {failure!r}")
+    return parse_failure(failure, robot)
+
+
+def parse_failure(spec: str, robot: Robot | str | None = None) -> Failure:
+    """Parse 'none', one of the robot's presets, or a comma list 'J2=0.3,J4=-1.5' (radians).
+    `robot`: a Robot, a shipped robot's name or an MJCF's path (default: the Panda).
+
+    >>> import lmjx
+    >>> lmjx.parse_failure("case2")
+    Failure('case2': J6=0.935, J7=-0.7193; 5 of 7 joints free)
+    >>> lmjx.parse_failure("J2=0.3,J4=-1.5", "ur5e")
+    Failure('J2=0.3,J4=-1.5': J2=0.3, J4=-1.5; 4 of 6 joints free)
+    """
+    robot = as_robot(robot)
     text = spec.strip()
     example = "'J2=0.3,J4=-1.5'"
     if not text:

@@ -24,7 +24,7 @@ from .failure import Failure
 from .fileio import atomic_path
 from .lazystates import StateReader
 from .reach import ReachConfig, ReachResult
-from .robot import ROBOTS, Robot, load_robot
+from .robot import ROBOTS, Robot, as_robot, load_robot
 
 SCHEMA = "lmjx-map"
 SCHEMA_VERSION = 2  # 2: the spatial index lists the edges whose whole arm (swept capsules) reaches a cell
@@ -91,15 +91,33 @@ def _write_reach(f: h5py.File, result: ReachResult) -> None:
     _dataset(g, "pos_err", result.pos_err.astype(np.float32), "distance of the solved site to its target [m]")
 
 
-def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | None = None) -> None:
-    """Write a map file holding only a Reach-Ability map; atomic (temp file, then rename)."""
+def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | str | Path | None = None) -> None:
+    """Write a map file holding only a Reach-Ability map (what `lmjx reach --out` writes;
+    schema: maps/README.md); atomic (temp file, then rename).  `robot`: the robot the map was
+    computed for (a Robot, a name or an MJCF's path); None: the shipped robot whose model
+    the result names.
+
+    >>> import lmjx
+    >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.1))
+    >>> lmjx.write_reach_map("case2_reach.h5", res)
+    """
     write_map(path, result, None, robot)
 
 
-def write_map(path: str | Path, reach: ReachResult, bundle: Bundle | None, robot: Robot | None = None) -> dict:
+def _robot_of(reach: ReachResult) -> Robot:
+    """The shipped robot a result was computed for (by its model's hash)."""
+    for name in ROBOTS:
+        if load_robot(name).model_hash == reach.robot_hash:
+            return load_robot(name)
+    raise MapFileError("this map was computed for a user's robot: pass robot= (its MJCF's path or the Robot)")
+
+
+def write_map(
+    path: str | Path, reach: ReachResult, bundle: Bundle | None, robot: Robot | str | Path | None = None
+) -> dict:
     """Write a map file: the Reach-Ability map and, when given, the edge bundle.  Atomic
     (temp file, then rename).  Returns storage figures (bytes per stored edge state)."""
-    robot = robot or load_robot()
+    robot = as_robot(robot) if robot is not None else _robot_of(reach)
     sizes: dict = {}
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w", track_order=True) as f:
@@ -398,6 +416,24 @@ class MapFile:
     file: h5py.File | None = dataclasses.field(default=None, repr=False)
     robot: Robot | None = dataclasses.field(default=None, repr=False)  # the robot it was built for
 
+    def __repr__(self) -> str:
+        parts = [f"{self.robot.key if self.robot else '?'}", f"failure {self.failure.spec!r}"]
+        if self.reach is not None:
+            a = self.reach.areas()
+            r = self.reach
+            parts.append(f"reach {len(r.ys)} x {len(r.xs)} cells of {r.config.cell * 100:g} cm")
+            parts.append(f"PM {a['pm']:.3f} m^2, NPM+PM {a['npm_pm']:.3f} m^2")
+        if self.edges is not None:
+            parts.append(f"{self.edges.n_edges:,} edges of {self.edges.sampled:,} sampled")
+        lazy = ", lazy" if self.lazy else ""
+        return f"MapFile({str(self.path)!r}: {'; '.join(parts)}{lazy})"
+
+    def __enter__(self) -> MapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         if self.edges is not None:
             for name in ("q", "qd", "p"):
@@ -436,15 +472,24 @@ def robot_for_file(path: Path, attrs: dict, robot: Robot | None) -> Robot:
 
 
 def load_map(
-    path: str | Path, robot: Robot | None = None, check_robot: bool = True, lazy: bool | None = None
+    path: str | Path, robot: Robot | str | Path | None = None, check_robot: bool = True, lazy: bool | None = None
 ) -> MapFile:
     """Open and validate a map file; raise MapFileError (one line) when it is unusable.
+    `robot` (a Robot, a name or an MJCF's path): the robot to read it with, which must be
+    the one it was built for; None: the shipped robot the file names.  A `with` block
+    closes it (a lazily opened map keeps its file open until then).
+
+    >>> import lmjx
+    >>> with lmjx.load_map("maps/case2.h5") as m:   # written by `make run`
+    ...     print(m.reach.areas()["pm"], m.edges.n_edges > 0)
+    0.0 True
 
     The reach map, the per-edge arrays and the spatial index are read at once; the edge
     states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which
     stays open (a map larger than memory is usable).  lazy=None: lazy when the states would
     take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions."""
     p = Path(path)
+    robot = as_robot(robot) if robot is not None else None
     if not p.exists():
         raise MapFileError(f"map file {p} does not exist")
     if p.is_dir():

@@ -37,6 +37,7 @@ from .executor import Executor, Observation
 from .failure import Failure
 from .goalfield import GoalField
 from .reach import ReachResult
+from .reprs import config_repr
 from .robot import Robot
 from .scenarios import Layout, Scenario, in_goal
 from .simulate import Simulator
@@ -66,6 +67,8 @@ class PlannerConfig:
     lazy_cap: bool = True  # Lazy stops after lazy_tries simulations (the paper: no cap)
     greedy_fraction: float | None = None  # Greedy's subset: this fraction of the edges over the
     # target (at least one) instead of greedy_candidates
+
+    __repr__ = config_repr
 
     def validate(self) -> None:
         if self.asm not in ASMS:
@@ -114,6 +117,13 @@ class StepRecord:
     transit_route: str = ""  # "direct", "park" or "roadmap" (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
 
+    def __repr__(self) -> str:
+        moved = "" if np.isnan(self.target_moved_m) else f", target moved {self.target_moved_m * 100:.1f} cm"
+        return (
+            f"StepRecord(edge {self.edge} of {self.candidates} candidates, {self.simulated} simulated; "
+            f"{self.distance_after * 100:.1f} cm from the goal after{moved}; transit {self.transit_route or '-'})"
+        )
+
     def summary(self) -> dict:
         return {
             "edge": self.edge,
@@ -146,6 +156,13 @@ class TrialResult:
     stopped: str = ""  # what stopped the planner (one of ENDS): it stops once the observed target
     # is `goal_margin` inside the goal, so a target that ended in the goal but nearer its edge
     # shows here what came next (e.g. "no feasible transit")
+
+    def __repr__(self) -> str:
+        end = "success" if self.success else "failure"
+        return (
+            f"TrialResult({end} ({self.reason}) after {self.actions} actions; planning {self.planning_s:.1f} s, "
+            f"robot time {self.execution_s:.1f} s; target {self.final_distance * 100:.1f} cm from the goal's centre)"
+        )
 
     def summary(self) -> dict:
         return {

@@ -20,15 +20,17 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from .errors import ConfigError
-from .failure import Failure, parse_failure
+from .failure import Failure, as_failure
 from .ik_batch import IKBatch, default_chunk, default_ik_settings, device_description
 from .kernels.ik import IKSettings
 from .progress import Progress
-from .robot import Robot, load_robot
+from .reprs import config_repr
+from .robot import Robot, as_robot
 
 UNREACHABLE, NPM, PM = 0, 1, 2
 LABEL_NAMES = {UNREACHABLE: "unreachable", NPM: "npm", PM: "pm"}
@@ -54,6 +56,8 @@ class ReachConfig:
     strategy: str = "auto"  # 'rounds', 'batch' or 'auto' (rounds on a CPU, batch elsewhere)
     chunk: int | None = None  # problems per kernel call; default by platform
     traced_locks: bool = False  # lock angles as kernel inputs (one compile for a sweep)
+
+    __repr__ = config_repr
 
     def validate(self, robot: Robot) -> None:
         if not (math.isfinite(self.cell) and 0.001 <= self.cell <= 0.5):
@@ -99,10 +103,16 @@ class ReachConfig:
         return default_ik_settings(iterations=self.iterations, cube_half=self.object_height / 2)
 
 
-def reach_config(robot: Robot, **overrides) -> ReachConfig:
-    """The default ReachConfig for `robot`: its default interaction points, and the task plane
-    scaled by its `task_scale` (the Panda's and the UR5e's: 1, the plane above); `overrides`
-    replace any field."""
+def reach_config(robot: Robot | str | Path | None = None, **overrides) -> ReachConfig:
+    """The default ReachConfig for `robot` (a Robot, a name or an MJCF's path; default the
+    Panda): its default interaction points, and the task plane scaled by its `task_scale`
+    (the Panda's and the UR5e's: 1, the plane above); `overrides` replace any field.
+
+    >>> import lmjx
+    >>> lmjx.reach_config("ur5e", cell=0.05)
+    ReachConfig(cell=0.05)
+    """
+    robot = as_robot(robot)
     s = robot.profile.task_scale
     base: dict = {"interaction_points": robot.default_ips}
     if s != 1.0:
@@ -137,6 +147,13 @@ class ReachResult:
     @property
     def cell_area(self) -> float:
         return self.config.cell**2
+
+    def __repr__(self) -> str:
+        a, cells = self.areas(), f"{len(self.ys)} x {len(self.xs)} cells of {self.config.cell * 100:g} cm"
+        return (
+            f"ReachResult({self.failure.spec!r}: {cells}, "
+            f"PM {a['pm']:.3f} m^2, NPM+PM {a['npm_pm']:.3f} m^2; {self.seconds:.1f} s on {self.device})"
+        )
 
     def areas(self, smooth: bool = True) -> dict[str, float]:
         lab = self.labels_smooth if smooth else self.labels
@@ -213,14 +230,22 @@ def attempt_plan(
 def reach_map(
     failure: Failure | str,
     config: ReachConfig | None = None,
-    robot: Robot | None = None,
+    robot: Robot | str | Path | None = None,
     progress: bool = False,
 ) -> ReachResult:
-    """Compute the Reach-Ability map of `failure` (a Failure or a spec such as 'case2')."""
-    robot = robot or load_robot()
+    """Compute the Reach-Ability map of `failure` (a Failure or a spec such as 'case2' or
+    'J2=0.3,J4=-1.5') for `robot` (a Robot, a shipped robot's name or an MJCF's path; default
+    the Panda), with `config` (default: the robot's default map, `reach_config(robot)`), as
+    `lmjx reach` does.  `progress`: a bar on stderr (a terminal, or LMJX_PROGRESS=1).
+
+    >>> import lmjx
+    >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.1), robot="panda")  # coarse: seconds on a CPU
+    >>> res.areas()["pm"]
+    0.0
+    """
+    robot = as_robot(robot)
     config = config or reach_config(robot)
-    if isinstance(failure, str):
-        failure = parse_failure(failure, robot)
+    failure = as_failure(failure, robot)
     config.validate(robot)
     device = device_description()  # initializes the JAX backend outside the timed region
     t_start = time.perf_counter()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import math
+import threading
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +54,7 @@ class RobotProfile:
     """What lmjx knows of a robot beyond its MJCF."""
 
     # Failure presets: name -> {joint number (1-based): lock angle [rad]}.  docs/ROBOTS.md
-    # and the README say how each was chosen.
+    # and docs/DETAILS.md say how each was chosen.
     presets: dict[str, dict[int, float]] = field(default_factory=dict)
     # The "real" world's joint servo gains (Franka-like impedance); None: from the torque limits.
     real_kp: tuple[float, ...] | None = None
@@ -65,7 +66,7 @@ class RobotProfile:
 
 
 PROFILES: dict[str, RobotProfile] = {
-    # Panda (README, "Failure cases"): case1 from `lmjx lock-search --joints J3,J5 --base
+    # Panda (docs/DETAILS.md, "Failure cases"): case1 from `lmjx lock-search --joints J3,J5 --base
     # J7=0.785398 --grid 7 --match 0.7294,0.9239`; case2 from `lmjx lock-search --joints J6,J7
     # --grid 9`.
     "panda": RobotProfile(
@@ -144,6 +145,14 @@ class Robot:
 
     def site_index(self, name: str) -> int:
         return self.site_names.index(name)
+
+    def __repr__(self) -> str:
+        presets = ", ".join(["none", *self.profile.presets])
+        ips = ", ".join(self.interaction_points)
+        return (
+            f"Robot({self.key!r}: {self.name}, {self.nq} joints, failures {presets}; interaction points {ips}; "
+            f"model {self.model_hash[:12]})"
+        )
 
 
 def _numeric(m: mujoco.MjModel, name: str) -> np.ndarray:
@@ -266,6 +275,16 @@ def resolve_robot(name_or_path: str | Path | None = None) -> tuple[str, Path]:
             return key, ROBOTS[key]
         return str(p), p
     raise ConfigError(f"unknown robot '{text}'; the shipped robots are {', '.join(ROBOTS)}, or give an MJCF's path")
+
+
+def as_robot(robot: Robot | str | Path | None = None) -> Robot:
+    """The robot an argument names: a `Robot` as it is, a shipped robot's name ("panda", the
+    default for None; "ur5e") or an MJCF's path (loaded once, see `load_robot`)."""
+    if isinstance(robot, Robot):
+        return robot
+    if robot is not None and not isinstance(robot, str | Path):
+        raise ConfigError(f"a robot is a name ({', '.join(ROBOTS)}), an MJCF's path or a Robot, not {robot!r}")
+    return load_robot(robot)
 
 
 def check_robot(path: str | Path) -> list[str]:
@@ -392,11 +411,21 @@ def robots() -> dict[str, str]:
     return {k: PROFILES[k].description for k in ROBOTS}
 
 
-@functools.lru_cache(maxsize=8)
 def load_robot(name_or_path: str | Path | None = None) -> Robot:
     """Load and cache a robot: a shipped one by name ("panda", the default; "ur5e") or any
-    MJCF that meets the contract by its path (RobotError lists what it lacks)."""
+    MJCF that meets the contract by its path (RobotError lists what it lacks).  Every way of
+    naming one robot (None, "panda", the path of its MJCF) gives the same object, so its
+    compiled kernels are shared (threads included: one loads, the others wait for it)."""
     key, path = resolve_robot(name_or_path)
+    with _LOADING:
+        return _load_robot(key, path)
+
+
+_LOADING = threading.Lock()
+
+
+@functools.lru_cache(maxsize=8)
+def _load_robot(key: str, path: Path) -> Robot:
     problems = check_robot(path)
     if problems:
         raise RobotError(path, problems)

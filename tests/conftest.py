@@ -3,10 +3,10 @@
 What is expensive is made once per test run and shared: every kernel is compiled at one
 shape (the shapes the commands use: the Reach-Ability map's IK program per failure, which
 the edges' start IK shares, and one rollout program per failure), the maps are session
-fixtures (`coarse`, `table1`, `table1_ur5e`, `small_map`), and commands run in this process
-(`cli`) unless what is tested needs a process of its own (`cli_process`: signals, several
-host devices or processes).  Compiled programs are kept in one cache folder for the whole
-run, subprocesses included (`LMJX_CACHE_DIR`: JAX's persistent compilation cache and the
+fixtures (`coarse`, `table1`, `table1_ur5e`, `small_map`, `tiny_map`, `tiny_atlas`, ...), and
+commands run in this process (`cli`) unless what is tested needs a process of its own
+(`cli_process`: signals, several host devices or processes).  Compiled programs are kept in
+one cache folder for the whole run, subprocesses included (`LMJX_CACHE_DIR`: JAX's persistent compilation cache and the
 traced kernels), a folder of its own under the temp dir unless the variable is set.  From the
 start of the run a thread compiles the programs the tests will need (`_compile_ahead`), so
 that compiling uses the second core while a test's own work leaves it idle.
@@ -50,6 +50,10 @@ PLAN_MAP = ("--failure", "case2", "--edges", "6000", "--seed", "0", "--chunk", "
 TINY_ARM = Path(__file__).parent / "data" / "tiny_arm.xml"
 TINY_MAP = ("--robot", TINY_ARM, "--failure", "J4=0.5", "--edges", "1200", "--cell", "0.05", "--seed", "3",
             "--chunk", "400")  # fmt: skip
+# A small atlas of the four-joint test arm: 6 pairs x 2 x 2 angles, 4 x 5 cells, 4 attempts of 2
+# restarts (the atlas tests and the docs' example read it).
+TINY_ATLAS = ("--robot", TINY_ARM, "--joints", "2", "--angles", "2", "--cell", "0.2", "--attempts", "4", "--restarts",
+              "2", "--iterations", "16", "--group", "3", "--chunk", "128")  # fmt: skip
 
 
 def random_configs(robot, n: int, seed: int) -> np.ndarray:
@@ -246,6 +250,15 @@ def small_map(tmp_path_factory) -> Path:
     its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
     path = tmp_path_factory.mktemp("small_map") / "case2.h5"
     cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
+    return path
+
+
+@pytest.fixture(scope="session")
+def tiny_atlas(tmp_path_factory) -> Path:
+    """The four-joint test arm's small atlas (TINY_ATLAS), by `lmjx atlas` on one device in
+    this process."""
+    path = tmp_path_factory.mktemp("atlas") / "single.h5"
+    cli("atlas", *TINY_ATLAS, "--no-shard", "--out", path, "--json").ok()
     return path
 
 

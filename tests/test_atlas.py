@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TINY_ARM, Collected, cli, cli_process, finish, ik_batch, random_configs, wait_for
+from conftest import TINY_ARM, TINY_ATLAS, Collected, cli, cli_process, finish, ik_batch, random_configs, wait_for
 
 from lmjx.atlas import AtlasConfig, entries, expected_maps, lock_angles, read_atlas, same_content
 from lmjx.failure import parse_failure
@@ -20,9 +20,8 @@ from lmjx.ik_batch import IKBatch
 from lmjx.reach import ReachConfig
 
 # a small atlas of the four-joint test arm (its program compiles several times faster than the
-# Panda's): 6 pairs x 2 x 2 angles, 4 x 5 cells, 4 attempts of 2 restarts
-TINY = ["--robot", TINY_ARM, "--joints", "2", "--angles", "2", "--cell", "0.2", "--attempts", "4", "--restarts", "2",
-        "--iterations", "16", "--group", "3", "--chunk", "128"]  # fmt: skip
+# Panda's): 6 pairs x 2 x 2 angles, 4 x 5 cells, 4 attempts of 2 restarts (conftest.TINY_ATLAS)
+TINY = list(TINY_ATLAS)
 MAPS = 24
 
 
@@ -111,10 +110,8 @@ def test_entries_count_and_angles(robot):
 
 
 @pytest.fixture(scope="module")
-def single(tmp_path_factory):
-    path = tmp_path_factory.mktemp("atlas") / "single.h5"
-    cli("atlas", *TINY, "--no-shard", "--out", path, "--json").ok()
-    return path
+def single(tiny_atlas):
+    return tiny_atlas
 
 
 def test_single_device_atlas_is_complete(single):

@@ -104,12 +104,14 @@ def test_table1_relations(robot, table1):
     assert a["none"]["npm_pm"] >= a["none"]["pm"]
 
 
-def _readme_table1(heading: str = "## Table I, reproduced", column: int = 3) -> dict[tuple[str, str], float]:
-    """A Table I of the README (the one under `heading`): (failure, 'pm' | 'npm_pm') -> the
-    area [m^2] its `column` states."""
+def _readme_table1(
+    heading: str = "## Table I, reproduced", column: int = 3, page: str = "docs/DETAILS.md"
+) -> dict[tuple[str, str], float]:
+    """A Table I of docs/DETAILS.md (or of `page`; the one under `heading`): (failure, 'pm' |
+    'npm_pm') -> the area [m^2] its `column` states."""
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = (Path(__file__).resolve().parents[1] / page).read_text()
     section = text[text.index(heading) + len(heading) :].split("\n## ", 1)[0].split("\n### ", 1)[0]
     out, failure = {}, None
     for line in section.splitlines():
@@ -130,6 +132,8 @@ def test_table1_figures_are_the_readmes(robot, table1):
     # the UR5e's table beside it repeats the Panda's figures
     beside = _readme_table1("### The same table for the UR5e", column=2)
     assert beside == {k: v for k, v in stated.items()}
+    # and the README's Table I states the same
+    assert _readme_table1("**Table I**", page="README.md") == stated
 
 
 def test_ur5e_table1_figures_are_the_readmes(ur5e, table1_ur5e):
