@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import TYPE_CHECKING
 
 from .common import (
     HDF5_SUFFIXES,
@@ -21,9 +20,6 @@ from .common import (
     _positive_int,
     check_suffix,
 )
-
-if TYPE_CHECKING:
-    from ..robot import Robot
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -67,16 +63,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _default_map_path(spec: str, robot: Robot) -> str:
-    safe = "".join(c if c.isalnum() or c in "-." else "_" for c in spec)
-    return f"{robot.maps_dir}/{safe}.h5"
-
-
 def cmd_build_map(args: argparse.Namespace) -> int:
-    from ..bundle import BundleConfig
-    from ..edgestream import build_map, partial_path
+    from ..api import build_map, default_map_path
+    from ..edgestream import partial_path
     from ..failure import parse_failure
-    from ..reach import reach_config
 
     if args.out:
         check_suffix(args.out, "--out", HDF5_SUFFIXES, "the map is written as HDF5")
@@ -85,49 +75,26 @@ def cmd_build_map(args: argparse.Namespace) -> int:
 
     robot = _load_robot(args)
     failure = parse_failure(args.failure, robot)
-    reach_cfg = reach_config(robot, cell=args.cell, seed=args.seed)
-    bundle_cfg = BundleConfig(
-        edges=args.edges, seed=args.seed, build_chunk=args.chunk, interaction_points=robot.default_ips
-    )
-    out = args.out or _default_map_path(failure.spec, robot)
-    lead = jax.process_index() == 0
+    out = args.out or str(default_map_path(failure, robot))
     try:
-        s = build_map(
-            out, failure, reach_cfg, bundle_cfg, robot, progress=True, sharded=not args.no_shard, yes=args.yes,
-            say=lambda line: print(line, file=sys.stderr),
+        b = build_map(
+            failure, robot, out=out, edges=args.edges, seed=args.seed, cell=args.cell, chunk=args.chunk,
+            sharded=not args.no_shard, yes=args.yes, progress=True, say=lambda line: print(line, file=sys.stderr),
         )  # fmt: skip
     except KeyboardInterrupt:
         _leave_interrupted(
             f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
             f"{partial_path(out)}: rerun the same command to continue (it resumes where this one stopped)"
         )
-    if not lead:
+    if jax.process_index() != 0:
         return 0
-    from ..mapfile import load_map
-
-    m = load_map(out, robot, lazy=True)
-    reach = m.reach
-    assert reach is not None
-    summary = {
-        "robot": robot.key,
-        "failure": failure.spec,
-        "out": out,
-        "seed": args.seed,
-        "reach": {k: reach.summary()[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")},
-        "edges": {k: v for k, v in s.items() if k not in ("bytes_per_state", "raw_bytes_per_state")},
-        "bytes_per_state": round(s.get("bytes_per_state", 0.0), 2),
-        "raw_bytes_per_state": round(s.get("raw_bytes_per_state", 0.0), 2),
-        "device": s["device"],
-        "devices": s["devices"],
-        "processes": s["processes"],
-    }
-    m.close()
+    summary, s, area = b.summary(), b.edges, b.reach["area_m2"]
     rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)
     lines = [
         f"{robot.key}, failure {failure.describe()} on {s['device']} ({s['devices']} device(s), "
         f"{s['processes']} process(es)): "
         f"map written to {out}",
-        f"  reach: PM {reach.areas()['pm']:.4f} m^2, NPM+PM {reach.areas()['npm_pm']:.4f} m^2 ({reach.seconds:.2f} s)",
+        f"  reach: PM {area['pm']:.4f} m^2, NPM+PM {area['npm_pm']:.4f} m^2 ({b.reach['seconds']:.2f} s)",
         f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
         f"  rollouts: {s['edge_steps']:,} edge-steps in {s['rollout_seconds']:.2f} s "
         f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile "

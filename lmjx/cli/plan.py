@@ -97,59 +97,25 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError
-    from ..failure import parse_failure
-    from ..fileio import check_writable
-    from ..mapfile import load_map
-    from ..trial import make_simulator, run_trial, setup_trial
+    from ..api import plan_task
 
-    m = load_map(args.map, _load_robot(args) if args.robot else None)  # None: the robot the map names
-    robot = m.robot
-    assert robot is not None
-    if args.failure is not None and parse_failure(args.failure, robot).locked != m.failure.locked:
-        raise ConfigError(f"{args.map} holds a map of failure {m.failure.spec}, not {args.failure}")
-    if m.edges is None:
-        raise ConfigError(f"{args.map} has no edges; build it with: lmjx build-map --failure {m.failure.spec}")
-    if args.render:
-        from ..render import check_render_path
-
-        check_render_path(args.render)
-        check_writable(args.render, "rendering")
-    sim_name, why = _resolve_sim(args) if args.asm != "random" else ("none", "random does not simulate")
-    config = _planner_config(args, args.asm, sim_name if sim_name != "none" else "cpu")
-    sim = make_simulator(robot, args.scenario, sim_name, args.tasks) if sim_name != "none" else None
-    setup = setup_trial(robot, m, args.scenario, config, args.seed, simulator=sim, tasks=args.tasks)
-    recorder = None
-    if args.render:
-        from ..render import Recorder
-
-        recorder = Recorder(setup.world)
-    res = run_trial(setup)
-    if recorder is not None:
-        recorder.write(args.render)
-    summary = {
-        "robot": robot.key,
-        "failure": m.failure.spec,
-        "tasks": args.tasks,
-        "scenario": args.scenario,
-        "asm": args.asm,
-        "seed": args.seed,
-        "simulator": sim_name,
-        "simulator_reason": why,
-        "simulator_description": sim.description if sim is not None else None,
-        "candidates": config.greedy_candidates if args.asm == "greedy" else None,
-        "asm_settings": config.settings(),
-        **res.summary(),
-        "steps": [s.summary() for s in res.steps],
-    }
+    if args.asm != "random":
+        _resolve_sim(args)  # announced on stderr before the trial runs
+    r = plan_task(
+        args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
+        candidates=args.candidates, asm_settings=args.asm_settings, sim=args.sim,
+        robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
+        failure=args.failure, render=args.render,
+    )  # fmt: skip
+    res, summary = r.trial, r.summary()
     lines = [
-        f"failure {m.failure.spec}, scenario {args.scenario} ({args.tasks} tasks), {args.asm}, seed {args.seed}: "
+        f"failure {r.failure}, scenario {args.scenario} ({args.tasks} tasks), {args.asm}, seed {args.seed}: "
         f"{'success' if res.success else 'failure'} ({res.reason}) after {res.actions} actions",
         f"  planning {res.planning_s:.1f} s (wall clock), robot time {res.execution_s:.1f} s (simulated execution), "
         f"target {res.final_distance * 100:.1f} cm from the goal's centre",
     ]
-    if sim is not None:
-        lines.append(f"  simulator: {sim.description}")
+    if r.simulator_description is not None:
+        lines.append(f"  simulator: {r.simulator_description}")
     if args.render:
         lines.append(f"  rendering written to {args.render}")
     _emit(args, summary, lines)
