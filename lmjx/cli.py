@@ -313,6 +313,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--group", type=_positive_int, default=256, help="maps per series of launches and checkpoint (256)")
     _add_reach_options(p)
     p.add_argument("--summary", help="also write a Markdown summary here (and its figure beside it as .png)")
+    # issue 20: several arms' atlases side by side (lmjx/atlas_compare.py)
+    p.add_argument("--compare", action="append", metavar="ROBOT[=ATLAS]",
+                   help="compute nothing but compare atlases: ROBOT a name or an MJCF, ATLAS its atlas (default "
+                   "<robot's maps>/atlas.h5); repeatable; with --summary PAGE the table goes into PAGE between its "
+                   "markers and the figure to img/<page>.png beside it")  # fmt: skip
     p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
     p.add_argument("--num-processes", type=_positive_int, default=1, help="multi-process runs: how many (default 1)")
     p.add_argument("--process-id", type=int, default=0, help="multi-process runs: this process's rank (default 0)")
@@ -870,6 +875,12 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from .errors import ConfigError
+
+    if args.compare:  # issue 20: compare atlases, compute none
+        from .atlas_compare import compare_report
+
+        _emit(args, *compare_report(args.compare, args.summary))
+        return 0
 
     try:
         sizes = tuple(int(x) for x in args.joints.split(",") if x.strip())
