@@ -138,7 +138,8 @@ def compare_markdown(arms: list[ArmSurvival], missing: dict[str, str], figure: s
         if figure:
             out += ["", f"![arms]({figure})"]
     if missing:
-        out += ["", "Atlases missing (the arm's row comes when its atlas exists):", ""]
+        out += [""] if out[-1] else []
+        out += ["Atlases missing (the arm's row comes when its atlas exists):", ""]
         out += [f"- {k}: {v}" for k, v in missing.items()]
     out += ["", END]
     return "\n".join(out) + "\n"
