@@ -107,7 +107,8 @@ def compare_markdown(arms: list[ArmSurvival], missing: dict[str, str], figure: s
     if arms:
         a0 = arms[0]
         out += [
-            f"Every 2- and 3-joint lock at K = {a0.angles} lock angles per locked joint (the atlases); areas after "
+            f"Every lock of {' and '.join(str(k) for k in a0.by_size)} joints at K = {a0.angles} lock angles per "
+            "locked joint (the atlases); areas after "
             f"hole filling in cells of {a0.cell * 100:g} cm; kept: a lock's area over the arm's own no-failure area "
             "(each arm's task plane is scaled by its size, so compare shares, not square metres).",
             "",
@@ -160,7 +161,7 @@ def compare_figure(arms: list[ArmSurvival], path: str | Path) -> None:
     ax1.set_yticks(y, names)
     ax1.invert_yaxis()
     ax1.set_xlim(0, 1)
-    ax1.set_xlabel("share of the 2- and 3-joint locks")
+    ax1.set_xlabel("share of the locks")
     ax1.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, fontsize=7, frameon=False)
     ax2.boxplot(
         [a.npm_pm_kept for a in arms], orientation="horizontal", positions=y, whis=(5, 95), showfliers=False, widths=0.5
