@@ -463,9 +463,7 @@ class TransitPlanner:
             for j in ok:
                 route = "direct" if direct[j] is not None else "park" if j in via else "roadmap"
                 transit = {"direct": direct, "park": via, "roadmap": road}[route][j]
-                out.append(
-                    _action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route, int(prefix[j]))
-                )
+                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route, int(prefix[j])))
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))

@@ -476,11 +476,13 @@ def _text_presets(m: mujoco.MjModel) -> dict[str, dict[int, float]]:
     """Failure presets a user's MJCF declares: <text name="lmjx_failure_NAME" data="J2=0.3,..."/>."""
     out = {}
     for i in range(m.ntext):
-        t = m.text(i)
-        if t.name.startswith(FAILURE_TEXT):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_TEXT, i) or ""
+        if name.startswith(FAILURE_TEXT):
+            adr, size = int(m.text_adr[i]), int(m.text_size[i])
+            data = bytes(m.text_data[adr : adr + size]).rstrip(b"\0").decode()  # (MjModel has no .text() view)
             locks = {}
-            for part in str(t.data).split(","):
+            for part in data.split(","):
                 j, _, v = part.strip().partition("=")
                 locks[int(j.strip().upper().lstrip("J"))] = float(v)
-            out[t.name[len(FAILURE_TEXT) :]] = locks
+            out[name[len(FAILURE_TEXT) :]] = locks
     return out

@@ -28,6 +28,11 @@ frame, inertial and collision geometry.  Then:
     static bodies), and any pair of bodies two joints apart whose capsules touch in at least
     `EXCLUDE_SHARE` of 1,000 seeded random configurations (touching at every angle, as the
     Panda's link 5 and link 7 housings do);
+  * **a gripper** for a bare arm (`--gripper 2f85[:z]`): the shipped UR5e's stand-in, the
+    envelope of a Robotiq 2F-85 opened to 85 mm (`GRIPPERS`), fixed at the flange's axis where
+    the flange link's own collision geometry ends (or `z` m along it), its `tcp` between the
+    fingertips; nothing is fitted to it (its capsules are the stand-in's);
+  * **failure presets** (`--preset NAME=J2=0.3,J4=-1.5`) as `<text name="lmjx_failure_NAME">`;
   * the table, the actuators and the limits' numerics as the contract says.
 """
 
@@ -57,6 +62,38 @@ IP_RULES = {
     "forearm": "of the links of the joints in the arm's second half but the last two, the one with the "
     "longest capsule: that capsule's end nearest the next joint; size: its radius",
 }
+
+
+@dataclass(frozen=True)
+class Gripper:
+    """A gripper stand-in in its mount frame (z along the flange axis, y the opening direction)."""
+
+    description: str
+    mass: float  # [kg]
+    com: tuple[float, float, float]  # [m]
+    inertia: tuple[float, float, float]  # diagonal [kg m^2] about the centre of mass
+    capsules: tuple[tuple[tuple[float, float, float], tuple[float, float, float], float], ...]  # (a, b, r)
+    tcp: tuple[float, float, float]  # the grasp point [m]
+
+
+GRIPPERS = {
+    # the shipped UR5e's gripper (lmjx/assets/ur5e.xml): a Robotiq 2F-85 opened to 85 mm
+    "2f85": Gripper(
+        "an open parallel gripper stand-in, the envelope of a Robotiq 2F-85 opened to 85 mm (0.925 kg, "
+        "fingers 85 mm apart, tcp 0.145 m from the mount); the shipped UR5e's",
+        0.925,
+        (0.0, 0.0, 0.055),
+        (0.0012, 0.0014, 0.0009),
+        (
+            ((0.0, -0.03, 0.045), (0.0, 0.03, 0.045), 0.042),
+            ((0.0, -0.045, 0.085), (0.0, 0.045, 0.085), 0.02),
+            ((0.0, 0.0515, 0.1), (0.0, 0.0515, 0.146), 0.009),
+            ((0.0, -0.0515, 0.1), (0.0, -0.0515, 0.146), 0.009),
+        ),
+        (0.0, 0.0, 0.145),
+    ),
+}
+GRIPPER_BODY = "gripper"
 
 
 class SourceError(ConfigError):
@@ -108,6 +145,8 @@ class ImportOptions:
     name: str | None = None
     ready: str | None = None
     ips: list[str] = field(default_factory=list)  # NAME=LINK:x,y,z[:r]
+    gripper: str | None = None  # KIND[:z], a key of GRIPPERS and the mount's distance along the flange axis
+    presets: list[str] = field(default_factory=list)  # NAME=J2=0.3,J4=-1.5
 
 
 @dataclass
@@ -462,6 +501,7 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
 
     last_tree = set(subtree(arm_bodies[-1]))
     # the tool
+    gripper, mount_z = _parse_gripper(opt)
     tcp_link, tcp_off = _parse_link_point(opt.tcp, "--tcp") if opt.tcp else (m.body(arm_bodies[-1]).name, np.zeros(3))
     if tcp_link not in names:
         raise SourceError(f"--tcp: no link '{tcp_link}' in {src.path.name}")
@@ -475,6 +515,7 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
         raise SourceError(f"--flange: no link '{flange_link}' in {src.path.name}")
     if names[flange_link] not in last_tree:
         raise SourceError(f"--flange: link '{flange_link}' is not past the last arm joint")
+    presets = _presets(opt.presets, ranges)
 
     # the reference configuration: arm joints at 0; joints beyond the arm welded
     d = mujoco.MjData(m)
@@ -566,6 +607,19 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
     if not np.allclose(tcp_frame.rot, np.eye(3), atol=1e-9):
         raise SourceError(f"--tcp: link '{tcp_link}' is rotated in its body; name the last arm link or a fixed link")
     tcp_pos = tcp_frame.pos + tcp_off
+    if gripper is not None:  # a body of its own on the flange's axis, the tcp in it
+        if mount_z is None:
+            pts, _ = _collision_points(m, d, {fl})
+            mount_z = float(np.max(frame(fl).inv_apply(pts)[:, 2])) if len(pts) else 0.0
+        f = frame(fl)
+        frames[GRIPPER_BODY] = Frame(f.pos + mount_z * f.rot[:, 2], f.rot)
+        parent_of[GRIPPER_BODY] = fl_owner
+        out_bodies.append((GRIPPER_BODY, -1))
+        sites[GRIPPER_BODY] = []
+        caps[GRIPPER_BODY] = [Capsule(np.array(a), np.array(b), r) for a, b, r in gripper.capsules]
+        inertial[GRIPPER_BODY] = (gripper.mass, np.array(gripper.com), np.diag(gripper.inertia))
+        tool_name, tcp_pos = GRIPPER_BODY, np.array(gripper.tcp)
+        tcp_link, tcp_off = f"{GRIPPER_BODY} ({opt.gripper}, {mount_z:.4g} m along the flange axis)", tcp_pos
     sites[tool_name].append(("tcp", tcp_pos, 0.006, None))
     ips = _interaction_points(caps, [m.body(b).name for b in arm_bodies], tool_name, tcp_pos, frames, opt)
     for ip_name, (body, pos, size) in ips.items():
@@ -585,7 +639,8 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
 
     def mjcf(excludes: list[tuple[str, str]], header: str = "") -> str:
         return _write_mjcf(name, src, m, arm, arm_bodies, out_bodies, parent_of, frames, inertial, caps, sites,
-                           ranges, lim, ready, span, excludes=excludes, header=header)  # fmt: skip
+                           ranges, lim, ready, span, excludes=excludes, header=header,
+                           presets=presets)  # fmt: skip
 
     # the exclusions are found on the model itself: once without them but the base's
     excludes = [("base", m.body(arm_bodies[0]).name)]
@@ -593,10 +648,66 @@ def import_robot(source: str | Path, out: str | Path, opt: ImportOptions, comman
     header = _header(
         src, command, arm, m, ranges, lim, notes, welded, fits, excludes, ips, tcp_link, tcp_off, flange_link
     )
+    extra = []
+    if gripper is not None:
+        extra.append(f"Gripper (--gripper {opt.gripper}; given, not fitted): {gripper.description}.")
+    if presets:
+        extra.append("Failure presets (--preset): " + "; ".join(f"{k} {v}" for k, v in presets.items()) + ".")
+    header += "".join("\n  " + e.replace("--", "- -") for e in extra)  # no "--" inside an XML comment
     text = mjcf(excludes, header)
     out = Path(out)
     write_text_atomic(out, text)
     return ImportReport(out, [m.joint(j).name for j in arm], fits, welded, excludes, notes)
+
+
+def _parse_gripper(opt: ImportOptions) -> tuple[Gripper | None, float | None]:
+    """--gripper KIND[:z]: the stand-in and the mount's distance along the flange axis (None:
+    where the flange link's geometry ends)."""
+    if opt.gripper is None:
+        return None, None
+    kind, _, z = opt.gripper.partition(":")
+    if kind not in GRIPPERS:
+        raise SourceError(f"--gripper '{opt.gripper}': known grippers: {', '.join(GRIPPERS)} (e.g. --gripper 2f85)")
+    if opt.tcp is not None:
+        raise SourceError("--gripper places the tcp between its fingertips: drop --tcp")
+    mount = None
+    if z:
+        mount = _numbers(z, "--gripper mount")[0]
+        if not 0 <= mount <= 1:
+            raise SourceError(f"--gripper '{opt.gripper}': the mount's distance must be 0..1 m")
+    return GRIPPERS[kind], mount
+
+
+def _presets(specs: list[str], ranges: np.ndarray) -> dict[str, str]:
+    """--preset NAME=J2=0.3,J4=-1.5 (repeatable): {name: spec}, each joint J1..Jn once, within
+    its range."""
+    n = len(ranges)
+    out = {}
+    for spec in specs:
+        name, _, locks = spec.partition("=")
+        if not name or not all(c.isalnum() or c in "_-" for c in name) or not locks:
+            raise SourceError(f"--preset '{spec}': write NAME=J2=0.3,J4=-1.5 (NAME of letters, digits, _ or -)")
+        if name == "none" or name in out:
+            raise SourceError(f"--preset '{spec}': the name '{name}' is reserved or given twice")
+        parts = []
+        seen = set()
+        for part in locks.split(","):
+            j, _, v = part.strip().partition("=")
+            j = j.strip().upper()
+            if not j.startswith("J") or not j[1:].isdigit() or not 1 <= int(j[1:]) <= n or int(j[1:]) in seen:
+                raise SourceError(f"--preset '{spec}': '{part}' is not a lock of one of J1..J{n} (each once)")
+            k, a = int(j[1:]), _numbers(v, f"--preset {name}")[0]
+            if not ranges[k - 1, 0] <= a <= ranges[k - 1, 1]:
+                raise SourceError(
+                    f"--preset '{spec}': J{k}={a:g} is outside the joint's range [{ranges[k - 1, 0]:.4g}, "
+                    f"{ranges[k - 1, 1]:.4g}]"
+                )
+            seen.add(k)
+            parts.append(f"J{k}={a:.9g}")
+        if len(seen) >= n:
+            raise SourceError(f"--preset '{spec}': locks every joint")
+        out[name] = ",".join(parts)
+    return out
 
 
 def _joint_values(text: str | None, n: int, what: str) -> np.ndarray | None:
@@ -733,6 +844,7 @@ def _write_mjcf(
     span,
     excludes,
     header="",
+    presets=None,
 ) -> str:
     scale = max(1.0, span / PANDA_SPAN)
     L = []
@@ -757,6 +869,8 @@ def _write_mjcf(
     ]
     if ready is not None:
         L.append(f'    <numeric name="lmjx_ready" data="{_fmt(ready, 9)}"/>')
+    for k, v in (presets or {}).items():
+        L.append(f'    <text name="lmjx_failure_{k}" data="{v}"/>')
     L += [
         "  </custom>",
         '  <visual><global offwidth="1280" offheight="960"/></visual>',

@@ -186,3 +186,22 @@ def test_plain_reader_reads_the_atlas(single):
         assert f.attrs["schema"] == "lmjx-atlas" and f["labels"].shape[0] == MAPS
         assert np.isfinite(f["area_npm_pm_m2"][...]).all()
         assert ReachConfig(cell=0.2).cell == f.attrs["cell_m"]
+
+
+def test_compare_reads_the_atlas_and_writes_the_page(single, tmp_path):
+    """`lmjx atlas --compare`: the tiny arm's atlas, its no-failure map computed with the
+    atlas's parameters (the logic itself: tests/test_atlas_compare.py)."""
+    md = tmp_path / "ARMS.md"
+    s = json.loads(
+        cli("atlas", "--compare", f"{TINY_ARM}={single}", "--compare", "ur5e=nowhere.h5", "--summary", md, "--json")
+        .ok()
+        .stdout
+    )
+    st = read_atlas(single)
+    a = st.areas()
+    (row,) = s["arms"]
+    assert row["locks"] == MAPS and row["pm_zero"] == int((a["pm"] == 0).sum())
+    assert row["rescued_by_npm"] == int(((a["pm"] == 0) & (a["npm_pm"] > 0)).sum())
+    assert row["none_m2"]["npm_pm"] > 0 and row["none_m2"]["npm_pm"] >= row["none_m2"]["pm"]
+    assert list(s["missing"]) == ["ur5e"] and (tmp_path / "img" / "arms.png").exists()
+    assert "| " + st.robot + " | 4 |" in md.read_text()

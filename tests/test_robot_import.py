@@ -225,3 +225,42 @@ def test_missing_limits_name_the_flag(tmp_path):
     assert r.joints == ["j1", "j2"] and check_robot(tmp_path / "o.xml") == []
     m = mujoco.MjModel.from_xml_path(str(tmp_path / "o.xml"))
     assert list(m.numeric("lmjx_qd_max").data) == [2, 3]
+
+
+def test_gripper_and_presets_on_a_bare_arm(tmp_path):
+    """--gripper 2f85: the UR5e's stand-in, mounted on the flange axis where the last link's
+    geometry ends (its box's top, 0.05 m), the tcp 0.145 m further; --preset: the loader's
+    failure presets.  Bad presets and --tcp beside --gripper are refused in one line."""
+    from lmjx.robot import load_robot
+    from lmjx.robot_import import GRIPPERS
+
+    src = tmp_path / "t.urdf"
+    body = _link("b") + _link("c") + _joint("j1", "revolute", "a", "b") + _joint("j2", "revolute", "b", "c")
+    src.write_text(URDF_HEAD + body + "</robot>")
+    out = tmp_path / "g.xml"
+    opt = ImportOptions(qdd_max="5", gripper="2f85", presets=["stuck=J2=0.5", "other=j1=-1"])
+    import_robot(src, out, opt)
+    assert check_robot(out) == []
+    m = mujoco.MjModel.from_xml_path(str(out))
+    d = mujoco.MjData(m)
+    for q in ([0.0, 0.0], [0.7, -0.4]):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        fl, tcp = d.site_xpos[m.site("flange").id], d.site_xpos[m.site("tcp").id]
+        z = d.site_xmat[m.site("flange").id].reshape(3, 3)[:, 2]
+        np.testing.assert_allclose(tcp, fl + (0.05 + GRIPPERS["2f85"].tcp[2]) * z, atol=1e-9)
+    assert m.body(int(m.site("tcp").bodyid[0])).name == "gripper" and m.body("gripper").mass[0] == pytest.approx(0.925)
+    robot = load_robot(str(out))
+    assert robot.profile.presets == {"stuck": {2: 0.5}, "other": {1: -1.0}}
+    import_robot(src, out, ImportOptions(qdd_max="5", gripper="2f85:0.1"))
+    m = mujoco.MjModel.from_xml_path(str(out))
+    assert m.body("gripper").pos[2] == pytest.approx(0.1)
+    for bad, message in (
+        (ImportOptions(qdd_max="5", gripper="2f85", tcp="c"), "drop --tcp"),
+        (ImportOptions(qdd_max="5", gripper="robotiq"), "known grippers: 2f85"),
+        (ImportOptions(qdd_max="5", presets=["x=J3=0"]), "not a lock of one of J1..J2"),
+        (ImportOptions(qdd_max="5", presets=["x=J1=2"]), "outside the joint's range"),
+        (ImportOptions(qdd_max="5", presets=["x=J1=0,J2=0"]), "locks every joint"),
+    ):
+        with pytest.raises(SourceError, match=message.replace(".", r"\.")):
+            import_robot(src, tmp_path / "bad.xml", bad)

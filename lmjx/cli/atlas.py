@@ -44,6 +44,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--group", type=_positive_int, default=256, help="maps per series of launches and checkpoint (256)")
     _add_reach_options(p)
     p.add_argument("--summary", help="also write a Markdown summary here (.md; its figure beside it as .png)")
+    p.add_argument("--compare", action="append", metavar="ROBOT[=ATLAS]",
+                   help="compute nothing but compare atlases: ROBOT a name or an MJCF, ATLAS its atlas (default "
+                   "<robot's maps>/atlas.h5); repeatable; with --summary PAGE the table goes into PAGE between its "
+                   "markers and the figure to img/<page>.png beside it")  # fmt: skip
     _add_distributed(p)
     p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
     p.add_argument("--chunk", type=_positive_int, help="IK problems per device per launch (default by platform)")
@@ -57,6 +61,12 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ..errors import ConfigError
+
+    if args.compare:  # several arms' atlases side by side (lmjx/atlas_compare.py)
+        from ..atlas_compare import compare_report
+
+        _emit(args, *compare_report(args.compare, args.summary))
+        return 0
 
     try:
         sizes = tuple(int(x) for x in args.joints.split(",") if x.strip())

@@ -32,6 +32,11 @@ def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c.add_argument("--ip", action="append", default=[], metavar="NAME=LINK:x,y,z[:r]",
                    help="place (or move) the interaction point ip_NAME; repeatable")  # fmt: skip
     c.add_argument("--name", help="the model's name (default lmjx_<source file's stem>)")
+    c.add_argument("--gripper", metavar="2f85[:z]", help="attach a gripper stand-in at the flange (2f85: the "
+                   "UR5e's, a Robotiq 2F-85 opened to 85 mm, tcp 0.145 m out) where the flange link's geometry "
+                   "ends along its axis, or z m along it; the tcp between its fingertips (no --tcp)")  # fmt: skip
+    c.add_argument("--preset", action="append", default=[], metavar="NAME=J2=0.3,J4=-1.5",
+                   help="a failure preset written into the file (--failure NAME); repeatable")  # fmt: skip
     c.add_argument("--json", action="store_true", help="print JSON on stdout")
     c.set_defaults(run=cmd_robot_import)
     return c
@@ -59,6 +64,8 @@ def cmd_robot_import(args: argparse.Namespace) -> int:
         name=args.name,
         ready=args.ready,
         ips=list(args.ip),
+        gripper=args.gripper,
+        presets=list(args.preset),
     )
     r = import_robot(args.src, out, opt, command_line())
     problems = check_robot(out)
