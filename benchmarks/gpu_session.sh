@@ -119,7 +119,7 @@ for step in $steps; do
         left=$(( deadline - $(date +%s) )); [ $left -gt 20 ] || return 0
         n="ev_$1_$2${3:+_s$3}${4:+_$4}"
         /usr/bin/time -f "eval $n: %e s wall" timeout $left python3 -m lmjx.cli evaluate --sim $1 --tasks $2 \
-          ${3:+--scenarios $3} ${4:+--failures $4} --maps "$WORK/maps" --out "$WORK/$n" --json > "$WORK/$n.json" \
+          ${3:+--scenarios $3} ${4:+--failures $4} ${ASMS:+--asms $ASMS} --maps "$WORK/maps" --out "$WORK/$n" --json > "$WORK/$n.json" \
           2> "$WORK/$n.err"
         tail -2 "$WORK/$n.err"; mkdir -p "$OUT/$n"; cp "$WORK/$n"/* "$OUT/$n/" 2>/dev/null
         cp "$WORK/$n.json" "$OUT/$n/summary.json" 2>/dev/null
