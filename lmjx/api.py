@@ -250,6 +250,7 @@ def plan_task(
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
     render: str | Path | None = None,
+    say: Any = None,
 ) -> PlanResult:
     """Run one task closed loop, as `lmjx plan` does: push the target cube of `scenario`
     (1: clutter, 2: tunnel, 3: eleven boxes) of the task set `tasks` ("paper" or "hard")
@@ -261,7 +262,8 @@ def plan_task(
     "paper" (the ASMs as the paper states them); `sim`: the planner's simulator ("auto",
     "cpu", "cpu-near", "gpu"); `robot`: read the map with this robot (default: the one it
     names); `failure`: refuse a map built for another failure; `render`: write the trial as
-    a .png frame strip, .gif or .mp4 (needs OpenGL, e.g. MUJOCO_GL=osmesa).
+    a .png frame strip, .gif or .mp4 (needs OpenGL, e.g. MUJOCO_GL=osmesa); `say`: where the
+    simulator's choice goes, once the arguments are checked (default: nowhere).
 
     Example (the map `make run` writes; Random simulates nothing, so this takes seconds):
 
@@ -305,6 +307,8 @@ def plan_task(
         sim_name, why = "none", "random does not simulate"
     else:
         sim_name, why = resolve_simulator(sim)
+        if say is not None:
+            say(f"simulator {sim_name} ({why})")
     config = PlannerConfig(
         asm=asm,
         max_actions=max_actions,

@@ -156,7 +156,9 @@ def test_killed_run_resumes_to_the_same_file(single, tmp_path):
     assert partial.exists() and not out.exists(), "the run finished before it could be killed"
     done_before = int(read_atlas(partial).done.sum())
     assert 0 < done_before < MAPS
-    s = json.loads(cli("atlas", *TINY, "--no-shard", "--out", out, "--json").ok().stdout)
+    r = cli("atlas", *TINY, "--no-shard", "--out", out, "--json").ok()
+    assert f"{done_before} of {MAPS} maps already computed" in r.stderr  # the resumed run says so
+    s = json.loads(r.stdout)
     assert s["maps_this_run"] == MAPS - done_before  # nothing computed twice
     assert out.exists() and not partial.exists()
     assert same_content(single, out) == []

@@ -130,7 +130,7 @@ def test_killed_build_resumes_to_the_same_file(tiny_map, tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
     assert "was damaged" in r.stderr.strip().splitlines()[-1] and "rerun the same command" in r.stderr
     assert not kept[1].exists() and not out.exists()
-    cli(*args).ok()
+    assert "resuming the build kept in" in cli(*args).ok().stderr  # the resumed run says so
     assert same_datasets(tiny_map, out) == []
     assert attributes(tiny_map) == attributes(out)
     assert not partial.exists()
@@ -146,6 +146,7 @@ def test_ctrl_c_leaves_nothing_at_out_and_the_chunks_for_later(tmp_path):
     p.wait(timeout=120)
     text = err.finish()
     assert p.returncode == 130 and "Traceback" not in text and "rerun the same command" in text, text
+    assert "it resumes where this one stopped" in text, text
     assert not out.exists() and partial.is_dir()
 
 

@@ -99,13 +99,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_plan(args: argparse.Namespace) -> int:
     from ..api import plan_task
 
-    if args.asm != "random":
-        _resolve_sim(args)  # announced on stderr before the trial runs
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
         candidates=args.candidates, asm_settings=args.asm_settings, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
-        failure=args.failure, render=args.render,
+        failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
     res, summary = r.trial, r.summary()
     lines = [
