@@ -19,7 +19,7 @@ from typing import Any
 from .errors import ConfigError
 from .failure import Failure, as_failure
 from .mapfile import MapFile, load_map
-from .planner import StepRecord, TrialResult
+from .planner import PlannerConfig, StepRecord, TrialResult
 from .robot import Robot, as_robot
 
 DEVICES = ("auto", "cpu", "gpu")
@@ -237,6 +237,22 @@ class PlanResult:
         }
 
 
+def planner_config(
+    asm: str, sim: str, max_actions: int | None = None, candidates: int | None = None, asm_settings: str = "lmjx"
+) -> PlannerConfig:
+    """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
+    default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"), and
+    asm_settings="paper" the ASMs as the paper states them."""
+    from .trial import DEFAULT_CANDIDATES
+
+    config = PlannerConfig(
+        asm=asm,
+        max_actions=max_actions,
+        greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
+    )
+    return config.paper() if asm_settings == "paper" else config
+
+
 def plan_task(
     map_file: str | Path | MapFile,
     scenario: int,
@@ -273,8 +289,8 @@ def plan_task(
     True
     """
     from .fileio import check_writable
-    from .planner import ASMS, PlannerConfig
-    from .trial import DEFAULT_CANDIDATES, SIMULATORS, make_simulator, resolve_simulator, run_trial, setup_trial
+    from .planner import ASMS
+    from .trial import SIMULATORS, make_simulator, resolve_simulator, run_trial, setup_trial
 
     if scenario not in (1, 2, 3):
         raise ConfigError(f"scenario {scenario!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
@@ -309,12 +325,7 @@ def plan_task(
         sim_name, why = resolve_simulator(sim)
         if say is not None:
             say(f"simulator {sim_name} ({why})")
-    config = PlannerConfig(
-        asm=asm,
-        max_actions=max_actions,
-        greedy_candidates=candidates or DEFAULT_CANDIDATES[sim_name if sim_name != "none" else "cpu"],
-    )
-    config = config.paper() if asm_settings == "paper" else config
+    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings)
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,9 +242,7 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
         "| --- | --- | --- | --- | ---: | ---: | ---: | ---: |",
     ]
     for (f, sc, a), rs in _cells(records):
-        ends: dict[str, int] = {}
-        for r in rs:
-            ends[_end_label(r)] = ends.get(_end_label(r), 0) + 1
+        ends = Counter(_end_label(r) for r in rs)
         acts = [x for r in rs for x in r.get("steps", [])]
         moved = [x for x in acts if x.get("target_moved_m") is not None]
         lines.append(

@@ -106,9 +106,9 @@ def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | str | 
 
 def _robot_of(reach: ReachResult) -> Robot:
     """The shipped robot a result was computed for (by its model's hash)."""
-    for name in ROBOTS:
-        if load_robot(name).model_hash == reach.robot_hash:
-            return load_robot(name)
+    for robot in map(load_robot, ROBOTS):
+        if robot.model_hash == reach.robot_hash:
+            return robot
     raise MapFileError("this map was computed for a user's robot: pass robot= (its MJCF's path or the Robot)")
 
 

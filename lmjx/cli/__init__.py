@@ -26,6 +26,7 @@ from .common import (
     _set_device,
     add_global_options,
     threading_main,
+    warn,
 )
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "build_parser", "main", "threading_main"]
@@ -96,7 +97,7 @@ def _gl_missing() -> str | None:
 def _cache(args: argparse.Namespace) -> None:
     from ..cache import configure
 
-    configure(args.cache_dir, warn=lambda m: print(f"lmjx {args.command}: warning: {m}", file=sys.stderr))
+    configure(args.cache_dir, warn=lambda m: warn(args.command, m))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

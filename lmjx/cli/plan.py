@@ -64,13 +64,9 @@ def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
 
 
 def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
-    from ..planner import PlannerConfig
-    from ..trial import DEFAULT_CANDIDATES
+    from ..api import planner_config
 
-    config = PlannerConfig(
-        asm=asm, max_actions=args.max_actions, greedy_candidates=args.candidates or DEFAULT_CANDIDATES[sim]
-    )
-    return config.paper() if args.asm_settings == "paper" else config
+    return planner_config(asm, sim, args.max_actions, args.candidates, args.asm_settings)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
