@@ -24,8 +24,8 @@ from lmjx.trial import run_trial, setup_trial
 _orig = acts.TransitPlanner.actions
 
 
-def _actions(self, bundle, edges, q_now, want, came_from=None):
-    out = _orig(self, bundle, edges, q_now, want, came_from)
+def _actions(self, bundle, edges, q_now, want, came_from=None, trail=None):
+    out = _orig(self, bundle, edges, q_now, want, came_from, trail)
     if not out and len(edges):
         edges = np.asarray(edges)
         keep = acts.FIXED_MARGIN
@@ -34,7 +34,7 @@ def _actions(self, bundle, edges, q_now, want, came_from=None):
                 acts.FIXED_MARGIN = fm
                 clear = edges[~self.blocked(bundle.q_start[edges].astype(np.float64))]
                 acting = self.edges_usable(bundle, clear)
-                got = _orig(self, bundle, edges, q_now, 5, came_from)
+                got = _orig(self, bundle, edges, q_now, 5, came_from, trail)
                 print(
                     f"  margin {fm * 100:.1f} cm: {len(edges)} over the target, {len(clear)} start clear, "
                     f"{int(acting.sum())} acting, {len(got)} with a transit {[a.route for a in got]}",

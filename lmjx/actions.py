@@ -52,6 +52,7 @@ LEAVE_TOLERANCE = 0.0002  # a transit leaving a contact may come this much neare
 RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outside the scene's margins [m]
 RETREAT_STEP = 0.05  # the retreat's waypoints: at least this far apart (largest joint motion) [rad]
 NEAR_SPEED = 0.1  # inside the margins the arm moves at this fraction of the transits' speed
+TRAIL_NODES = 1024  # the way back (`trail_back`): at most this many nodes, RETREAT_STEP apart (to the park pose)
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
@@ -155,6 +156,7 @@ class TransitPlanner:
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
         self._retreat: tuple = (None, None)  # (where from, along what, in which scene) -> the retreat
+        self._trail: tuple = (None, None)  # (where from, how long a trail, in which scene) -> `trail_back`
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
@@ -416,8 +418,38 @@ class TransitPlanner:
             return None
         return np.concatenate([way[i] + np.outer(np.arange(1, k + 1) / k, dq[i]) for i, k in enumerate(n)])
 
+    def trail_back(self, source: np.ndarray, trail: np.ndarray) -> np.ndarray:
+        """The way the arm came, back from `source`, as roadmap nodes (k, nj): the states of
+        `trail` (every joint target the arm followed, oldest first) from the latest one
+        nearest `source` backwards, RETREAT_STEP apart (largest joint motion), at most
+        TRAIL_NODES of them, those now blocked (the table, the arm, the scene's margins)
+        left out.  Where the arm was, it could move; the objects a push moved are checked
+        again on every link (`Roadmap.transits`)."""
+        trail = np.asarray(trail, np.float64)
+        if not len(trail):
+            return np.zeros((0, len(source)))
+        gap = np.abs(trail - source).max(axis=1)
+        j = int(np.nonzero(gap <= gap.min() + 1e-9)[0][-1])
+        nodes, last = [], source
+        for q in trail[j::-1]:
+            if np.abs(q - last).max() >= RETREAT_STEP:
+                nodes.append(q)
+                last = q
+                if len(nodes) == TRAIL_NODES:
+                    break
+        if not nodes:
+            return np.zeros((0, len(source)))
+        nodes = np.asarray(nodes)
+        return nodes[~self.blocked(nodes)]
+
     def actions(
-        self, bundle: Bundle, edges: np.ndarray, q_now: np.ndarray, want: int, came_from: np.ndarray | None = None
+        self,
+        bundle: Bundle,
+        edges: np.ndarray,
+        q_now: np.ndarray,
+        want: int,
+        came_from: np.ndarray | None = None,
+        trail: np.ndarray | None = None,
     ) -> list[Action]:
         """The first `want` feasible actions among `edges`, in their order (fewer if there are
         not that many).  Edges are taken in blocks (whatever the block, the same first
@@ -427,7 +459,8 @@ class TransitPlanner:
         `came_from`: the states of the edge the arm just executed.  Where the arm stands
         inside the scene's margins (it pushed something), every transit begins with the
         `retreat` along it; without one (none given, or none clear) a transit may leave the
-        margins directly, never going deeper."""
+        margins directly, never going deeper.  `trail`: every joint target the arm followed
+        so far (oldest first); the roadmap may take the way back along it (`trail_back`)."""
         out: list[Action] = []
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
         if came_from is not None and self.scene is not None:
@@ -454,7 +487,8 @@ class TransitPlanner:
             via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
             rest = [j for j, p in enumerate(direct) if p is None and j not in via]
             if rest and self.search:
-                found = self.roadmap(bundle).transits(q_now, starts[rest])
+                back = None if trail is None else self._trail_back(q_now, trail)
+                found = self.roadmap(bundle).transits(q_now, starts[rest], back)
                 road = {j: f for j, f in zip(rest, found, strict=True) if f is not None}
             else:
                 road = {}
@@ -468,6 +502,13 @@ class TransitPlanner:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
+
+    def _trail_back(self, q_now: np.ndarray, trail: np.ndarray) -> np.ndarray:
+        """`trail_back`, once per decision (Lazy asks one edge at a time)."""
+        key = (q_now.tobytes(), len(trail), self._scene_version)
+        if self._trail[0] != key:
+            self._trail = (key, self.trail_back(q_now, trail))
+        return self._trail[1]
 
     def roadmap(self, bundle: Bundle) -> Roadmap:
         """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle)."""

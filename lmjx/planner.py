@@ -313,6 +313,7 @@ class Planner:
         # position at the time, per edge (not offered again while the target stays there)
         self.futile: dict[int, np.ndarray] = {}
         self.came_from: np.ndarray | None = None  # the last executed edge's states (transits retreat along it)
+        self.trail: np.ndarray | None = None  # every joint target the arm followed in this trial (the way back)
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
         """One decision, simulating on this planner's simulator."""
@@ -334,7 +335,7 @@ class Planner:
         now = float(self.field(target))
         rec = StepRecord(-1, len(edges), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1, self.came_from)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1, self.came_from, self.trail)
             if acts:
                 rec.edge = acts[0].edge
             return (acts[0] if acts else None), rec
@@ -342,7 +343,7 @@ class Planner:
             want = cfg.greedy_candidates
             if cfg.greedy_fraction is not None:
                 want = max(1, math.ceil(cfg.greedy_fraction * len(edges)))
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, want, self.came_from)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, want, self.came_from, self.trail)
             if not acts:
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -357,7 +358,7 @@ class Planner:
         tries = cfg.lazy_tries if cfg.lazy_cap else len(order)
         improved = False
         if self.batched:  # its tries at once, then the first improvement in their order
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries, self.came_from)
+            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries, self.came_from, self.trail)
             rec.simulated = len(acts)
             if acts:
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -371,7 +372,7 @@ class Planner:
             for e in order:
                 if rec.simulated == tries:
                     break
-                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from)
+                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
                 if not acts:
                     continue
                 rec.simulated += 1
@@ -411,6 +412,7 @@ class Planner:
         self.futile = {}
         self.came_from = None
         obs = executor.reset(layout, self.transits.park)
+        self.trail = obs.robot_q[None].copy()
         steps: list[StepRecord] = []
         planning = 0.0
         reason = "budget"
@@ -436,6 +438,7 @@ class Planner:
             obs = yield Execute(action)
             # the edge's states it executed (in the map's precision: a whole edge as it is stored)
             self.came_from = action.q[action.transit_steps :].astype(self.bundle.q_start.dtype)
+            self.trail = np.concatenate([self.trail, action.q])
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
                 self.futile[action.edge] = before

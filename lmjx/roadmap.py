@@ -41,7 +41,9 @@ K = 10  # each node linked to its K nearest (transit time)
 SOURCE_K = 16  # where the arm stands, linked to its nearest free nodes
 BRIDGES = 5  # links joining each separate piece of the roadmap to the rest
 GOAL_K = 6  # each goal (an edge's start), linked to its nearest free nodes
-ROUNDS = 12  # lazy rounds: shortest paths, then their unchecked links checked
+TRAIL_K = 4  # each node of the way back (`transits`' trail), linked to its nearest free nodes
+TRAIL_GOAL_K = 2  # each goal, linked from its nearest nodes of the way back
+ROUNDS = 32  # lazy rounds: shortest paths, then their unchecked links checked
 SEED = 0  # which edge starts become nodes
 
 
@@ -125,9 +127,18 @@ class Roadmap:
             self._free = self.t.scene_slack(self.q) >= 0
             self._checked = {}
 
-    def transits(self, source: np.ndarray, goals: np.ndarray) -> list[np.ndarray | None]:
+    def transits(
+        self, source: np.ndarray, goals: np.ndarray, trail: np.ndarray | None = None
+    ) -> list[np.ndarray | None]:
         """Joint targets from `source` (nj,) to each goal (n, nj) along the roadmap (see the
-        module docstring), or None where it finds no way."""
+        module docstring), or None where it finds no way.
+
+        `trail` (k, nj): the way the arm came, back from `source` (free configurations, the
+        nearest first; `TransitPlanner.trail_back`): chained one to the next from the source,
+        each linked to its TRAIL_K nearest free nodes and to the goals it is among the
+        TRAIL_GOAL_K nearest of.  After a push the arm may stand where no straight line to
+        any node keeps clear (in a tunnel, under its roof): it can still leave the way it
+        came."""
         out: list[np.ndarray | None] = [None] * len(goals)
         if not len(goals):
             return out
@@ -135,23 +146,31 @@ class Roadmap:
         free = np.nonzero(self._free)[0]
         if not len(free):
             return out
+        trail = np.zeros((0, len(source))) if trail is None else np.asarray(trail, np.float64)
         nodes = self.q[free]
         m = len(self.q)
-        src = m  # graph ids: roadmap nodes 0..m-1, the source m, goal g at m + 1 + g
+        src = m  # graph ids: roadmap nodes 0..m-1, the source m, goal g at m + 1 + g,
+        first_trail = m + 1 + len(goals)  # the trail's nodes after the goals
         s_idx, s_time = nearest(source[None], nodes, SOURCE_K, self.speed)
         g_idx, g_time = nearest(goals, nodes, GOAL_K, self.speed)
         link_ok = self._free[self.links[:, 0]] & self._free[self.links[:, 1]]
         # the links in this query, as (from, to, time): undirected roadmap links both ways
         la, lb, lt = self.links[link_ok, 0], self.links[link_ok, 1], self.link_time[link_ok]
-        src_links = [(src, int(free[j])) for j in s_idx[0]]
-        goal_links = [(int(free[j]), m + 1 + g) for g in range(len(goals)) for j in g_idx[g]]
-        frm = np.concatenate([la, lb, [a for a, _ in src_links], [a for a, _ in goal_links]])
-        to = np.concatenate([lb, la, [b for _, b in src_links], [b for _, b in goal_links]])
-        time = np.concatenate([lt, lt, s_time[0], g_time.ravel()])
+        links = [(src, int(free[j]), t) for j, t in zip(s_idx[0], s_time[0], strict=True)]
+        links += [(int(free[j]), m + 1 + g, g_time[g, i]) for g in range(len(goals)) for i, j in enumerate(g_idx[g])]
+        if len(trail):
+            links += self._trail_links(source, trail, goals, free, nodes, first_trail)
+        best: dict[tuple[int, int], float] = {}  # one link per (from, to): csgraph adds duplicates up
+        for a, b, t in links:
+            best[(a, b)] = min(t, best.get((a, b), np.inf))
+        links = [(a, b, t) for (a, b), t in best.items()]
+        frm = np.concatenate([la, lb, np.array([a for a, _, _ in links], np.int64)])
+        to = np.concatenate([lb, la, np.array([b for _, b, _ in links], np.int64)])
+        time = np.concatenate([lt, lt, np.array([t for _, _, t in links], np.float64)])
         time = np.maximum(time, 1e-9)  # csgraph reads an explicit 0 as no link
-        q_of = np.concatenate([self.q, source[None], goals])  # configuration of each graph id
+        q_of = np.concatenate([self.q, source[None], goals, trail])  # configuration of each graph id
         segs: dict[tuple[int, int], np.ndarray | None] = {}  # checked links (directed as checked)
-        n_graph = m + 1 + len(goals)
+        n_graph = m + 1 + len(goals) + len(trail)
         key = frm * n_graph + to
         blocked = np.isin(key, self._blocked_keys(n_graph))  # roadmap links found blocked earlier
         todo = set(range(len(goals)))
@@ -185,7 +204,7 @@ class Roadmap:
                 if p[0] < m and p[1] < m:
                     self._checked[(min(p), max(p))] = seg is not None
             bad = [p for p, seg in zip(pairs, checked, strict=True) if seg is None]
-            bad += [(b, a) for a, b in bad if a < m and b < m]
+            bad += [(b, a) for a, b in bad if m not in (a, b)]  # the same line both ways
             blocked |= np.isin(key, np.array([a * n_graph + b for a, b in bad], np.int64))
         if not found:
             return out
@@ -194,15 +213,42 @@ class Roadmap:
             out[goal] = np.concatenate([self._seg(a, b, q_of, segs) for a, b in pairwise(path)])
         return out
 
+    def _trail_links(
+        self, source: np.ndarray, trail: np.ndarray, goals: np.ndarray, free: np.ndarray, nodes: np.ndarray, first: int
+    ) -> list[tuple[int, int, float]]:
+        """The links of the way back (graph ids `first`...): the chain from the source through
+        the trail in order; the source to its SOURCE_K nearest trail nodes (a push may have
+        left an object on part of the way); each trail node with its TRAIL_K nearest free
+        roadmap nodes and TRAIL_K nearest trail nodes, both ways; each goal from its
+        TRAIL_GOAL_K nearest trail nodes.  (from, to, transit time)"""
+        src = len(self.q)
+        ids = np.arange(first, first + len(trail))
+        chain = np.concatenate([source[None], trail])
+        step = transit_time(chain[:-1], chain[1:], self.speed)
+        out = list(zip([src, *ids[:-1]], ids, step, strict=True))
+        out += [(b, a, t) for a, b, t in out[1:]]
+        s_idx, s_time = nearest(source[None], trail, SOURCE_K, self.speed)
+        out += [(src, int(ids[j]), t) for j, t in zip(s_idx[0], s_time[0], strict=True)]
+        for others, to_id in ((nodes, free), (trail, ids)):
+            idx, time = nearest(trail, others, TRAIL_K, self.speed)
+            for i in range(len(trail)):
+                for j, t in zip(idx[i], time[i], strict=True):
+                    out += [(int(ids[i]), int(to_id[j]), t), (int(to_id[j]), int(ids[i]), t)]
+        g_idx, g_time = nearest(goals, trail, TRAIL_GOAL_K, self.speed)
+        for g in range(len(goals)):
+            out += [(int(ids[j]), src + 1 + g, t) for j, t in zip(g_idx[g], g_time[g], strict=True)]
+        return out
+
     def _known(self, p: tuple[int, int], segs: dict) -> bool | None:
-        """Whether link p is free: checked in this query, or a roadmap link checked in this scene."""
+        """Whether link p is free: checked in this query (either way, unless from the source:
+        every other node is a free configuration, the same line both ways), or a roadmap link
+        checked in this scene."""
         if p in segs:
             return segs[p] is not None
         a, b = p
-        if (b, a) in segs and a != b:
-            m = len(self.q)
-            if a < m and b < m:
-                return segs[(b, a)] is not None
+        m = len(self.q)
+        if (b, a) in segs and a != b and m not in p:
+            return segs[(b, a)] is not None
         return self._checked.get((min(p), max(p))) if max(p) < len(self.q) else None
 
     def _blocked_keys(self, n_graph: int) -> np.ndarray:
