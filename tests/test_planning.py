@@ -536,12 +536,13 @@ def test_a_blocked_way_to_park_goes_around_the_objects(robot, plan_map):
         )
 
 
-def test_a_roadmap_transit_goes_around_what_blocks_the_straight_line(robot, plan_map):
-    """Where a cube stands where the straight line between two edge starts passes halfway,
-    the roadmap (`lmjx.roadmap`, over the map's edge starts) finds a way from one to the
-    other that ends at the goal, keeps OBJECT_MARGIN from the cube at every control step by
-    C MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
-    contacts), and moves no joint faster than the transits' speed."""
+def _cube_between_two_starts(robot, plan_map):
+    """Two edge starts of the planner tests' map far apart, and a cube where the straight
+    line between them passes halfway (scenario 1's other objects far away), set as the
+    scene of a batched TransitPlanner: (map, transits, q0, q1, check) where check(path)
+    asserts that a path from q0 keeps OBJECT_MARGIN from the cube at every control step by C
+    MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
+    contacts) and moves no joint faster than the transits' speed."""
     from lmjx.actions import OBJECT_MARGIN
 
     m = load_map(plan_map)
@@ -559,50 +560,50 @@ def test_a_roadmap_transit_goes_around_what_blocks_the_straight_line(robot, plan
     objects = far.copy()
     objects[0, :3] = d.site_xpos[model.site(robot.mj.site(robot.tcp_site).name).id]
     tp.set_scene(sc, objects, acting=False)
+
+    def check(path: np.ndarray) -> None:
+        set_state(scene, d, q0, objects)
+        clearance = arm_clearance_fn(robot, scene, d)
+        target = [model.geom(f"{sc.movable[0].name}_geom").id]
+        assert min(clearance(q, target) for q in path) >= OBJECT_MARGIN - 1e-4
+        for q in path:
+            d.qpos[scene.robot_qpos] = q
+            mujoco.mj_forward(model, d)
+            assert not any(
+                model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 for c in d.contact[: d.ncon]
+            )
+        step = np.abs(np.diff(np.concatenate([q0[None], path]), axis=0)).max(axis=0)
+        assert np.all(step <= tp.speed * CONTROL_DT * (1 + 1e-9))
+
+    return m, tp, q0, q1, check
+
+
+def test_a_roadmap_transit_goes_around_what_blocks_the_straight_line(robot, plan_map):
+    """Where a cube stands where the straight line between two edge starts passes halfway,
+    the roadmap (`lmjx.roadmap`, over the map's edge starts) finds a way from one to the
+    other that ends at the goal, keeps OBJECT_MARGIN from the cube at every control step by
+    C MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
+    contacts), and moves no joint faster than the transits' speed."""
+    m, tp, q0, q1, check = _cube_between_two_starts(robot, plan_map)
     assert tp.segment(q0, q1) is None
     path = tp.roadmap(m.edges).transits(q0, q1[None])[0]
     assert path is not None and np.allclose(path[-1], q1)
-    set_state(scene, d, q0, objects)
-    clearance = arm_clearance_fn(robot, scene, d)
-    target = [model.geom(f"{sc.movable[0].name}_geom").id]
-    assert min(clearance(q, target) for q in path) >= OBJECT_MARGIN - 1e-4
-    for q in path:
-        d.qpos[scene.robot_qpos] = q
-        mujoco.mj_forward(model, d)
-        assert not any(
-            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 for c in d.contact[: d.ncon]
-        )
-    step = np.abs(np.diff(np.concatenate([q0[None], path]), axis=0)).max(axis=0)
-    assert np.all(step <= tp.speed * CONTROL_DT * (1 + 1e-9))
+    check(path)
 
 
 def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     """The arm may stand where no roadmap node has a clear line (after a push, in a tunnel):
     the way it came (`TransitPlanner.trail_back`, from every joint target it followed) then
-    leads out.  Here: a cube halfway along the straight line between two edge starts, the
-    arm at one having come from the other around the cube (a path the full roadmap found);
-    a roadmap of the park pose alone finds no way back to the other start, with the trail it
-    finds one that ends there, keeps OBJECT_MARGIN from the cube at every control step by C
-    MuJoCo's mj_geomDistance and moves no joint faster than the transits' speed.  The trail's
-    nodes are its own states, RETREAT_STEP apart, from the latest nearest the arm backwards."""
-    from lmjx.actions import OBJECT_MARGIN, RETREAT_STEP, TRAIL_NODES
+    leads out.  Here: the cube of the test above, the arm at one start having come from the
+    other around the cube (a path the full roadmap found); a roadmap of the park pose alone
+    finds no way back to the other start, with the trail it finds one that ends there and
+    passes the same checks (C MuJoCo's clearance and contacts, the transits' speed).  The
+    trail's nodes are its own states, RETREAT_STEP apart, from the latest nearest the arm
+    backwards."""
+    from lmjx.actions import RETREAT_STEP, TRAIL_NODES
     from lmjx.roadmap import Roadmap
 
-    m = load_map(plan_map)
-    sc = scenario(1, tasks="hard")
-    scene = build_scene(robot, sc)
-    model, d = scene.model, mujoco.MjData(scene.model)
-    tp = TransitPlanner(robot, m.failure, batched=True)
-    starts = m.edges.q_start[:400].astype(np.float64)
-    starts = starts[~tp.colliding_batch(starts)]
-    far_apart = np.abs(starts[:, None] - starts[None]).max(axis=-1)
-    i, j = np.unravel_index(np.argmax(far_apart), far_apart.shape)
-    q0, q1 = starts[i], starts[j]
-    far = np.array([[5.0 + k, 5.0, 0.5, 1.0, 0.0, 0.0, 0.0] for k in range(len(sc.movable))])
-    set_state(scene, d, (q0 + q1) / 2, far)
-    objects = far.copy()
-    objects[0, :3] = d.site_xpos[model.site(robot.mj.site(robot.tcp_site).name).id]
-    tp.set_scene(sc, objects, acting=False)
+    m, tp, q0, q1, check = _cube_between_two_starts(robot, plan_map)
     came = tp.roadmap(m.edges).transits(q1, q0[None])[0]  # how the arm came from q1 to q0
     assert came is not None and tp.segment(q0, q1) is None
     trail = np.concatenate([q1[None], came])
@@ -615,9 +616,4 @@ def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     assert alone.transits(q0, q1[None])[0] is None
     path = alone.transits(q0, q1[None], back)[0]
     assert path is not None and np.allclose(path[-1], q1)
-    set_state(scene, d, q0, objects)
-    clearance = arm_clearance_fn(robot, scene, d)
-    target = [model.geom(f"{sc.movable[0].name}_geom").id]
-    assert min(clearance(q, target) for q in path) >= OBJECT_MARGIN - 1e-4
-    step = np.abs(np.diff(np.concatenate([q0[None], path]), axis=0)).max(axis=0)
-    assert np.all(step <= tp.speed * CONTROL_DT * (1 + 1e-9))
+    check(path)
