@@ -16,6 +16,7 @@ import json
 import time
 
 import numpy as np
+from calibrate_tasks import CAL_BASE  # (this folder: the script's own)
 
 from lmjx.actions import TransitPlanner
 from lmjx.evaluate import trial_seed
@@ -23,8 +24,6 @@ from lmjx.mapfile import load_map
 from lmjx.planner import PlannerConfig
 from lmjx.robot import load_robot
 from lmjx.trial import run_trial, setup_trial
-
-CAL_BASE = 7
 
 
 def main() -> None:

@@ -401,12 +401,7 @@ class TransitPlanner:
         """Joint targets from q_now through the states `back` (waypoints RETREAT_STEP apart,
         the last kept) at NEAR_SPEED, or None where `_leaves_cleanly` or the table and the
         arm forbid it."""
-        way = [q_now]
-        for q in back[:-1]:
-            if np.abs(q - way[-1]).max() >= RETREAT_STEP:
-                way.append(q)
-        way.append(back[-1])
-        way = np.asarray(way)
+        way = np.asarray([q_now, *_spaced(q_now, back[:-1]), back[-1]])
         dq = np.diff(way, axis=0)
         n, fine = self._timing(dq, True)
         checks = np.concatenate([way[i] + np.outer(np.arange(1, f + 1) / f, dq[i]) for i, f in enumerate(fine)])
@@ -430,13 +425,7 @@ class TransitPlanner:
             return np.zeros((0, len(source)))
         gap = np.abs(trail - source).max(axis=1)
         j = int(np.nonzero(gap <= gap.min() + 1e-9)[0][-1])
-        nodes, last = [], source
-        for q in trail[j::-1]:
-            if np.abs(q - last).max() >= RETREAT_STEP:
-                nodes.append(q)
-                last = q
-                if len(nodes) == TRAIL_NODES:
-                    break
+        nodes = _spaced(source, trail[j::-1], TRAIL_NODES)
         if not nodes:
             return np.zeros((0, len(source)))
         nodes = np.asarray(nodes)
@@ -573,6 +562,20 @@ class TransitPlanner:
             if second is not None:
                 out[j] = np.concatenate([first, second])
         return out
+
+
+def _spaced(start: np.ndarray, states: np.ndarray, most: int | None = None) -> list[np.ndarray]:
+    """The states of a path (in order) that lie RETREAT_STEP or more (largest joint motion)
+    from the one kept before them, `start` first (not returned); at most `most` of them."""
+    kept: list[np.ndarray] = []
+    last = start
+    for q in states:
+        if np.abs(q - last).max() >= RETREAT_STEP:
+            kept.append(q)
+            last = q
+            if len(kept) == most:
+                break
+    return kept
 
 
 def _action(

@@ -11,7 +11,8 @@ apart joined by their shortest links (`BRIDGES`).  A query finds, for many goals
 at once (the starts of the candidate edges), the fastest way from where the arm stands:
 
 1. nodes inside the scene's margins are dropped (one batch); the source is linked to its
-   `SOURCE_K` nearest nodes, each goal to its `GOAL_K` nearest;
+   `SOURCE_K` nearest nodes, each goal to its `GOAL_K` nearest; given the way the arm came
+   (its trail), its states become nodes too, chained from the source (`_trail_links`);
 2. lazily, round after round (at most `ROUNDS`): the shortest paths from the source to
    every goal over the links not yet found blocked (Dijkstra, scipy's csgraph); the links
    on them not yet checked are checked all in one batch (`TransitPlanner.segments`: the
@@ -41,7 +42,7 @@ K = 10  # each node linked to its K nearest (transit time)
 SOURCE_K = 16  # where the arm stands, linked to its nearest free nodes
 BRIDGES = 5  # links joining each separate piece of the roadmap to the rest
 GOAL_K = 6  # each goal (an edge's start), linked to its nearest free nodes
-TRAIL_K = 4  # each node of the way back (`transits`' trail), linked to its nearest free nodes
+TRAIL_K = 4  # each node of the way back (`transits`' trail), linked to its nearest free nodes and trail nodes
 TRAIL_GOAL_K = 2  # each goal, linked from its nearest nodes of the way back
 ROUNDS = 32  # lazy rounds: shortest paths, then their unchecked links checked
 SEED = 0  # which edge starts become nodes
@@ -134,11 +135,9 @@ class Roadmap:
         module docstring), or None where it finds no way.
 
         `trail` (k, nj): the way the arm came, back from `source` (free configurations, the
-        nearest first; `TransitPlanner.trail_back`): chained one to the next from the source,
-        each linked to its TRAIL_K nearest free nodes and to the goals it is among the
-        TRAIL_GOAL_K nearest of.  After a push the arm may stand where no straight line to
-        any node keeps clear (in a tunnel, under its roof): it can still leave the way it
-        came."""
+        nearest first; `TransitPlanner.trail_back`), as more nodes (`_trail_links`).  After
+        a push the arm may stand where no straight line to any node keeps clear (in a
+        tunnel, under its roof): it can still leave the way it came."""
         out: list[np.ndarray | None] = [None] * len(goals)
         if not len(goals):
             return out
