@@ -99,8 +99,9 @@ def evaluate(
     in one line when trials of an earlier run are kept (a resumed run).
 
     The trials of a scenario run together (`lmjx.lockstep`): on a GPU their candidates are
-    simulated in shared batches, and executions run on all cores; each trial makes the
-    decisions it would make alone.  A record is written as soon as its trial ends."""
+    simulated in shared batches, and executions run on all cores; on the CPU as many trials
+    as cores are in flight at once.  Each trial makes the decisions it would make alone.  A
+    record is written as soon as its trial ends."""
     config.validate()
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
@@ -168,7 +169,9 @@ def evaluate(
             write_text_atomic(results_path, json.dumps(records, indent=1) + "\n")
             bar.update(1)
 
-        run_lockstep(trials, sim, finished, threads=threads)
+        # a GPU answers every trial's candidates in one batch; C MuJoCo gains nothing from
+        # more trials in flight than cores, and a stopped run keeps the trials that ended
+        run_lockstep(trials, sim, finished, threads=threads, window=None if batched else threads)
     bar.close()
     return records
 

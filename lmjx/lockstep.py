@@ -7,6 +7,11 @@ trial's candidates) and all the executions on a pool of threads (C MuJoCo releas
 interpreter lock while it steps).  A trial's decisions do not depend on which other trials
 share its batches: this only changes how fast they are made.
 
+A `window` keeps at most that many trials in flight, the next starting as one ends: with a
+simulator that does not prefer batches (C MuJoCo) nothing is gained by advancing every trial
+together, and a run stopped part-way keeps the trials that ended (each is recorded as it
+ends) instead of losing a whole group that had not finished.
+
 Planning time: a batch's seconds are charged to the trials in it in proportion to their
 candidates (a simulator that does not prefer batches is called per request, and each is
 charged its own call).
@@ -29,25 +34,32 @@ def run_lockstep(
     sim: Simulator | None,
     on_done: Callable[[int, TrialResult], None],
     threads: int = 1,
+    window: int | None = None,
 ) -> None:
     """Drive `trials` (generator, executor) to their ends; `on_done(index, result)` is
-    called as each finishes."""
-    answers: dict[int, Any] = {i: None for i in range(len(trials))}
+    called as each finishes; at most `window` (None: all) are in flight at once, in order."""
+    width = len(trials) if window is None else max(1, window)
+    answers: dict[int, Any] = {i: None for i in range(min(width, len(trials)))}
+    waiting = iter(range(len(answers), len(trials)))
     with ThreadPoolExecutor(max(1, threads)) as pool:
         while answers:
             sims: dict[int, Simulate] = {}
             execs: dict[int, Execute] = {}
+            answers_next: dict[int, Any] = {}
             for i, answer in answers.items():
                 try:
                     req = trials[i][0].send(answer)
                 except StopIteration as done:
                     on_done(i, done.value)
+                    nxt = next(waiting, None)
+                    if nxt is not None:  # starts with the next round
+                        answers_next[nxt] = None
                     continue
                 if isinstance(req, Simulate):
                     sims[i] = req
                 else:
                     execs[i] = req
-            answers = {}
+            answers = answers_next
             futures = {i: pool.submit(trials[i][1].execute, req.action) for i, req in execs.items()}
             if sims:
                 assert sim is not None, "a trial asked for a simulation but no simulator was given"

@@ -271,16 +271,31 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     cfgs = [PlannerConfig(asm=a, max_actions=1, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
                                                                                                "greedy")]  # fmt: skip
     alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard")).summary() for c in cfgs]
-    setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard") for c in cfgs]
-    together: dict[int, dict] = {}
-    run_lockstep(
-        [(s.planner.trial(s.world, s.layout, s.planner_seed), s.world) for s in setups],
-        sim,
-        lambda i, res: together.__setitem__(i, res.summary()),
-        threads=2,
-    )
-    for i, res in enumerate(alone):
-        assert together[i] | {"planning_s": 0} == res | {"planning_s": 0}
+    for window in (None, 2):  # all at once (a GPU's batches), or two in flight (the CPU's cores)
+        setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard") for c in cfgs]
+        together: dict[int, dict] = {}
+        events: list[tuple[str, int]] = []
+
+        def logged(i, trial, events=events):
+            events.append(("start", i))
+            return (yield from trial)
+
+        def done(i, res, together=together, events=events):
+            together[i] = res.summary()
+            events.append(("end", i))
+
+        run_lockstep(
+            [(logged(i, s.planner.trial(s.world, s.layout, s.planner_seed)), s.world) for i, s in enumerate(setups)],
+            sim,
+            done,
+            threads=2,
+            window=window,
+        )
+        starts = [events.index(("start", i)) for i in range(3)]
+        first_end = min(events.index(("end", i)) for i in range(3))
+        assert (starts[2] > first_end) == (window == 2)  # the third waits for a place
+        for i, res in enumerate(alone):
+            assert together[i] | {"planning_s": 0} == res | {"planning_s": 0}
 
 
 class _BatchPreferringCpu(CpuSimulator):
