@@ -25,7 +25,7 @@ the three scenarios, a distance per scenario; the start never inside the goal (d
 least the goal's half size + 3 cm, the layouts' jitter; in the tunnel the goal region wholly
 past the wall); in every scenario at least one
 case-1 trial succeeds in one action; then the smallest total gap between case 1's Random
-success and 2/3 (in trials), then the largest distances (harder tasks), then the hard set's
+success and 2/3 (in trials), then the shorter distances, then the hard set's
 goal size (12 cm square) and budget (30) if they are among the best, else the smaller
 ones.
 """
@@ -190,8 +190,10 @@ def main() -> None:
     args = ap.parse_args()
     robot = load_robot("panda")
     runs, t0 = {}, time.perf_counter()
-    if args.from_runs:  # the trials of an earlier run, scored again
-        for r in json.loads(Path(args.from_runs).read_text())["runs"]:
+    if args.from_runs:  # the trials of an earlier run, scored again (its number of trials)
+        earlier = json.loads(Path(args.from_runs).read_text())
+        args.trials = earlier["trials"]
+        for r in earlier["runs"]:
             runs[(r["failure"], r["scenario"])] = r["trials"]
     for f in args.failures.split(","):
         if args.from_runs:
