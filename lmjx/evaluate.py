@@ -295,6 +295,7 @@ def plots(records: list[dict], out: Path) -> None:
     import matplotlib.pyplot as plt
 
     rows = summarize(records)
+    most = max((r["trials"] for r in rows), default=0)  # a cell with fewer (a partial run) says how many
     failures = sorted({r["failure"] for r in rows})
     scenarios = sorted({r["scenario"] for r in rows})
     asms = [a for a in ASMS if any(r["asm"] == a for r in rows)]
@@ -315,7 +316,8 @@ def plots(records: list[dict], out: Path) -> None:
             sc = ax.scatter(x, y, s=size, c=[r["task_s_mean"]], cmap="RdYlGn_r", vmin=vmin, vmax=vmax,
                             edgecolors="black")  # fmt: skip
             # beside the circle (its radius is sqrt(size)/2 points), not on it
-            ax.annotate(f"{r['success_rate'] * 100:.0f}%", (x, y), xytext=(np.sqrt(size) / 2 + 3, 0),
+            label = f"{r['success_rate'] * 100:.0f}%" + (f"\nn={r['trials']}" if r["trials"] < most else "")
+            ax.annotate(label, (x, y), xytext=(np.sqrt(size) / 2 + 3, 0),
                         textcoords="offset points", ha="left", va="center", fontsize=9)  # fmt: skip
         ax.set_xticks(range(len(scenarios)), [f"scenario {s}" for s in scenarios])
         ax.set_yticks(range(len(asms)), asms)
