@@ -5,7 +5,7 @@
 #   here:    bash benchmarks/map_parts.sh split DIR      (DIR/case1.h5, DIR/case2.h5 -> .evp1 ... .evpN)
 #   there:   carry [".evpK"], then  bash benchmarks/map_parts.sh take .evpK   (once per part, in order)
 #            and last  bash benchmarks/map_parts.sh join /tmp/lmjx_gpu/maps   (md5-checked)
-# Each part folder holds one piece (<= 46 MB) and, for the map it belongs to, NAME and MD5.
+# Each part folder holds one piece (<= 46 MB, <map>.h5.partNN) and its map's checksum (<map>.h5.md5).
 set -euo pipefail
 PARTS=/tmp/map_parts
 case ${1:-} in
