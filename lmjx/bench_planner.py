@@ -13,7 +13,6 @@ scoring) with the simulator's default candidate count.
 
 from __future__ import annotations
 
-import os
 import statistics
 import time
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .actions import TransitPlanner
+from .cores import usable_cores
 from .errors import ConfigError
 from .executor import Observation
 from .mapfile import load_map
@@ -106,7 +106,7 @@ def bench_planner(
     for n in counts:
         reps = repeats if n <= LONG_REFERENCE else 1
         t, reference[n], steps = timed(cpu, n, reps)
-        row = {"simulator": "cpu", "what": f"{cpu.description} ({os.cpu_count()} cores)", "candidates": n}
+        row = {"simulator": "cpu", "what": f"{cpu.description} ({usable_cores()} cores)", "candidates": n}
         out["rows"].append({**row, "seconds": t, "repeats": reps, "steps": steps, "steps_per_s": steps / t})
     near = CpuSimulator(scene, k_objects=4, robot=robot)
     n = counts[0]

@@ -10,7 +10,6 @@ successful task).
 from __future__ import annotations
 
 import json
-import os
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .actions import TransitPlanner
+from .cores import usable_cores
 from .errors import ConfigError
 from .fileio import atomic_path, write_text_atomic
 from .lockstep import run_lockstep
@@ -129,7 +129,7 @@ def evaluate(
     if say is not None and len(todo) < len(rank) and done:
         say(f"resuming: {len(rank) - len(todo)} of {len(rank)} trials already in {results_path}")
     bar = Progress(total=len(todo), desc="trials", enabled=progress, unit="trial")
-    threads = os.cpu_count() or 1
+    threads = usable_cores()
     for s in sorted({k[1] for k in todo}):
         group = [k for k in todo if k[1] == s]
         sim = make_simulator(robot, s, config.backend, config.tasks) if any(k[2] != "random" for k in group) else None
@@ -204,7 +204,7 @@ def simulator_description(name: str) -> str:
 
         return f"gpu: MuJoCo Warp on {wp.get_device('cuda:0').name}, whole scene"
     what = "whole scene" if name == "cpu" else "the target and its 3 nearest objects"
-    return f"{name}: C MuJoCo mujoco.rollout on {os.cpu_count()} cores, {what}"
+    return f"{name}: C MuJoCo mujoco.rollout on {usable_cores()} cores, {what}"
 
 
 def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:

@@ -12,7 +12,6 @@ time.  Datasets stored any other way (other filters or chunk shapes) are read th
 
 from __future__ import annotations
 
-import os
 import threading
 import zlib
 from collections import OrderedDict
@@ -21,6 +20,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import h5py
 import numpy as np
+
+from .cores import usable_cores
 
 CACHE_BYTES = 256 * 2**20  # decompressed chunks kept per dataset
 
@@ -50,7 +51,7 @@ class StateReader:
         self.cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self.cache_bytes = cache_bytes
         self.held = 0
-        self.threads = threads or os.cpu_count() or 1
+        self.threads = threads or usable_cores()
         self._pool: ThreadPoolExecutor | None = None
         self._lock = threading.Lock()
 

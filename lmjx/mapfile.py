@@ -10,7 +10,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 
 from . import __version__
 from .bundle import Bundle, BundleConfig
+from .cores import usable_cores
 from .errors import MapFileError
 from .failure import Failure
 from .fileio import atomic_path
@@ -210,7 +210,7 @@ class EdgeWriter:
             self.columns[name] = _Column(self._dataset(name, doc, (self.widths[name],), np.dtype(np.float32)),
                                          STATE_ROWS)  # fmt: skip
         self.rows = 0  # states given
-        self.threads = threads or os.cpu_count() or 1
+        self.threads = threads or usable_cores()
         self.pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lmjx-write")
         # chunks being compressed and written by the pool, so the caller goes on while the
         # pool works (at most `4 x threads` in flight)

@@ -10,7 +10,6 @@ world's.
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from typing import Protocol
 
@@ -19,6 +18,7 @@ import numpy as np
 from mujoco import rollout
 
 from .actions import Action, controls
+from .cores import usable_cores
 from .robot import Robot
 from .scenarios import Scenario
 from .scene import Scene, build_scene, set_state
@@ -87,7 +87,7 @@ class CpuSimulator:
     ) -> None:
         self.scene = scene
         self.settle = settle
-        self.threads = threads or os.cpu_count() or 1
+        self.threads = threads or usable_cores()
         self.segment = segment
         self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self.k = None if k_objects is None else min(k_objects, scene.n_objects)
