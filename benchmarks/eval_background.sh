@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# Evaluations that outlive one device call: `launch` starts each run in a process session of
+# its own (setsid), so it goes on between calls for as long as the machine is held (up to 30
+# minutes; a call's limit is 10); `wait` waits for them and brings back what they hold.
+# Run from the repository root on the device machine, after the wheels and the maps are in
+# place (benchmarks/gpu_session.sh's set-up, benchmarks/map_parts.sh):
+#
+#     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS ..." bash benchmarks/eval_background.sh launch
+#     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
+#
+# Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
+# FAILURES --asms ASMS` (commas inside a field; '-' leaves it at its default) pinned to the
+# cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
+# after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
+# run resumes it.  `lmjx evaluate` sizes its pools to the cores it is pinned to
+# (lmjx/cores.py).  The code runs from a copy made at launch (/tmp/lmjx_repo), untouched by
+# the next call's working tree.  `wait` returns after WAIT_S seconds or when every run has
+# ended, prints each run's trials and state, and packs every run's results.json and the
+# tail of its log into $OUT/ev.tgz (merge with benchmarks/eval_acceptance.py --merge).
+set -uo pipefail
+WORK=/tmp/lmjx_gpu
+REPO=/tmp/lmjx_repo
+OUT=${OUT:-$PWD/out/gpu}
+mkdir -p "$WORK" "$OUT"
+
+count() {  # trials in a results.json
+  python3 -c "import json, sys; print(len(json.load(open(sys.argv[1]))))" "$1" 2>/dev/null || echo 0
+}
+
+case ${1:-} in
+  launch)
+    rm -rf "$REPO" && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
+    for spec in ${RUNS:?RUNS names the runs}; do
+      IFS=: read -r name sim tasks scen fail asms cpus <<< "$spec"
+      dir="$WORK/$name"; mkdir -p "$dir"
+      [ -f ".evprev/$name.json" ] && [ ! -f "$dir/results.json" ] && cp ".evprev/$name.json" "$dir/results.json"
+      args="--sim $sim --tasks $tasks --maps $WORK/maps --out $dir --json"
+      [ "$scen" != - ] && args="$args --scenarios $scen"
+      [ "$fail" != - ] && args="$args --failures $fail"
+      [ "$asms" != - ] && args="$args --asms $asms"
+      pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
+      env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
+      [ "$sim" = gpu ] && env="XLA_PYTHON_CLIENT_PREALLOCATE=false"
+      echo "$name: $pin lmjx evaluate $args (resuming $(count "$dir/results.json") trials)"
+      setsid nohup bash -c "cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 $env; \
+        start=\$(date +%s); $pin python3 -m lmjx.cli evaluate $args > $dir.json 2> $dir.err; \
+        echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc" > /dev/null 2>&1 < /dev/null &
+      echo "$name" >> "$WORK/runs"
+    done
+    date -u +"launched %H:%M:%S" ;;
+  wait)
+    end=$(( $(date +%s) + ${WAIT_S:-560} ))
+    while [ "$(date +%s)" -lt $end ]; do
+      left=0
+      for name in $(sort -u "$WORK/runs"); do [ -f "$WORK/$name.rc" ] || left=$((left + 1)); done
+      [ $left -eq 0 ] && break
+      sleep 10
+    done
+    date -u +"%H:%M:%S"
+    files=()
+    for name in $(sort -u "$WORK/runs"); do
+      state=$( [ -f "$WORK/$name.rc" ] && cat "$WORK/$name.rc" || echo running )
+      echo "$name: $(count "$WORK/$name/results.json") trials, $state; $(tail -c 160 "$WORK/$name.err" | tr '\r\n' '  ')"
+      tail -c 4000 "$WORK/$name.err" > "$WORK/$name/log.txt" 2>/dev/null
+      cp "$WORK/$name.json" "$WORK/$name/summary.json" 2>/dev/null
+      files+=("$name")
+    done
+    tar czf "$OUT/ev.tgz" -C "$WORK" "${files[@]}" && ls -l "$OUT/ev.tgz"
+    uptime ;;
+  *)
+    echo "usage: RUNS=... $0 launch | WAIT_S=... $0 wait" >&2; exit 2 ;;
+esac
