@@ -2,11 +2,13 @@
 change does before it meets the evaluation (issue 19's tunnel, docs/EVALUATION.md).
 
     python benchmarks/calib_trials.py MAPS_DIR FAILURE SCENARIO ASM FIRST COUNT [--tasks paper]
-        [--no-trail] [--candidates 32]
+        [--no-trail] [--candidates 32] [--max-actions N]
 
 Runs trials seeded `trial_seed(7, SCENARIO, FIRST + i)` for i < COUNT (7xx,xxx: the
 calibration base, see benchmarks/calibrate_tasks.py) on C MuJoCo; Greedy and Lazy simulate
-on C MuJoCo with `--candidates`.  `--no-trail`: transits without the way back
+on C MuJoCo with `--candidates`; `--max-actions`: another budget than the task set's (the
+runs of 2026-11-25 in calib_tunnel_greedy_cpu_2026-11-25.jsonl had 10, the paper set's budget
+then).  `--no-trail`: transits without the way back
 (`TransitPlanner.trail_back` returns nothing), to compare."""
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main() -> None:
     ap.add_argument("--tasks", default="paper")
     ap.add_argument("--no-trail", action="store_true")
     ap.add_argument("--candidates", type=int, default=32)
+    ap.add_argument("--max-actions", type=int, default=None)
     args = ap.parse_args()
     if args.no_trail:
         TransitPlanner.trail_back = lambda self, source, trail: np.zeros((0, len(source)))
@@ -45,7 +48,7 @@ def main() -> None:
     transits = TransitPlanner(robot, m.failure)
     for t in range(args.first, args.first + args.count):
         seed = trial_seed(CAL_BASE, args.scenario, t)
-        cfg = PlannerConfig(asm=args.asm, greedy_candidates=args.candidates)
+        cfg = PlannerConfig(asm=args.asm, greedy_candidates=args.candidates, max_actions=args.max_actions)
         t0 = time.perf_counter()
         r = run_trial(setup_trial(robot, m, args.scenario, cfg, seed=seed, transits=transits, tasks=args.tasks))
         steps = [s for s in r.steps if s.edge >= 0]
