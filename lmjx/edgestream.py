@@ -62,6 +62,7 @@ from .bundle import (
     solve_starts,
 )
 from .chunkfile import saved_chunks
+from .cores import usable_cores
 from .errors import ConfigError, OutputPathError
 from .failure import Failure
 from .fileio import check_writable
@@ -120,9 +121,9 @@ def _duration(s: float) -> str:
 def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
     """Estimated size and time of a build of n edges (before any work)."""
     gpu = platform != "cpu"
-    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * (os.cpu_count() or 1)
+    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * usable_cores()
     seconds = n / rate + COMPILE_SECONDS["gpu" if gpu else "cpu"]
-    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {os.cpu_count()}"
+    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {usable_cores()}"
     basis = f"{rate:,.0f} edges/s, from rates measured on {where}"
     parent = out.parent if str(out.parent) else Path(".")
     return Preflight(

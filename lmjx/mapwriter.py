@@ -42,6 +42,7 @@ import numpy as np
 
 from . import chunkfile, threadprof
 from .bundle import BundleConfig, EdgeChunk, chunk_ranges, pack_chunk, reasons, split_rolled
+from .cores import usable_cores
 from .errors import LmjxError
 from .mapfile import PER_EDGE, EdgeWriter, write_head, write_index
 from .reach import ReachResult
@@ -57,14 +58,14 @@ APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
 
 
 def packer_threads() -> int:
-    """Threads packing computed chunks: a third of the host's cores, 1 to 12."""
-    return max(1, min(12, (os.cpu_count() or 1) // 3))
+    """Threads packing computed chunks: a third of the cores this process may use, 1 to 12."""
+    return max(1, min(12, usable_cores() // 3))
 
 
 def writer_threads() -> int:
     """Threads compressing and writing the map in the writing process: up to 8 (the
     compression of a 2-GPU build's states needs about 2 cores)."""
-    return max(1, min(8, os.cpu_count() or 1))
+    return max(1, min(8, usable_cores()))
 
 
 @dataclass
