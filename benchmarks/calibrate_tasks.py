@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -43,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from lmjx.actions import TransitPlanner
+from lmjx.cores import usable_cores
 from lmjx.evaluate import trial_seed
 from lmjx.executor import SimulatedRealWorld
 from lmjx.lockstep import run_lockstep
@@ -96,7 +96,7 @@ def run_trials(robot, m, number: int, trials: int, budget: int) -> list[dict]:
         seed, world = worlds[i]
         out[i] = {"seed": seed, "end": res.reason, "actions": res.actions, "track": world.track}
 
-    run_lockstep(planner_trials, None, done, threads=os.cpu_count() or 1)
+    run_lockstep(planner_trials, None, done, threads=usable_cores())
     return [out[i] for i in range(trials)]
 
 

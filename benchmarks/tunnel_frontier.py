@@ -58,8 +58,7 @@ def main() -> None:
         acts = [a for e, q0 in zip(pick, q0s, strict=True) for a in transits.actions(m.edges, np.array([e]), q0, 1)]
         row = {"y": y, "over": len(edges), "start_clear": len(clear), "acting": len(acting), "simulated": len(acts)}
         if acts:
-            starts = [a.q[0] for a in acts]
-            ty = np.array([sim.simulate(q0, objects, [a])[0, 0, 1] for q0, a in zip(starts, acts, strict=True)])
+            ty = np.array([o[0, 0, 1] for o in sim.simulate_many([(a.q[0], objects, [a]) for a in acts])])
             row |= {"moved_1cm_plus_y": int(np.sum(ty - y >= 0.01)), "farthest_y": round(float(ty.max()), 4),
                     "top5_y": [round(float(v), 4) for v in np.sort(ty)[-5:][::-1]]}  # fmt: skip
         print(json.dumps(row), flush=True)
