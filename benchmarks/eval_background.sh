@@ -13,13 +13,12 @@
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it.  `lmjx evaluate` sizes its pools to the cores it is pinned to
-# (lmjx/cores.py).  The code runs from a copy made at launch (/tmp/lmjx_repo), untouched by
-# the next call's working tree.  `wait` returns after WAIT_S seconds or when every run has
+# (lmjx/cores.py).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one per
+# launch, so a later launch with other code leaves the running ones alone).  `wait` returns after WAIT_S seconds or when every run has
 # ended, prints each run's trials and state, and packs every run's results.json and the
 # tail of its log into $OUT/ev.tgz (merge with benchmarks/eval_acceptance.py --merge).
 set -uo pipefail
 WORK=/tmp/lmjx_gpu
-REPO=/tmp/lmjx_repo
 OUT=${OUT:-$PWD/out/gpu}
 mkdir -p "$WORK" "$OUT"
 
@@ -29,7 +28,7 @@ count() {  # trials in a results.json
 
 case ${1:-} in
   launch)
-    rm -rf "$REPO" && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
+    REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     for spec in ${RUNS:?RUNS names the runs}; do
       IFS=: read -r name sim tasks scen fail asms cpus <<< "$spec"
       dir="$WORK/$name"; mkdir -p "$dir"

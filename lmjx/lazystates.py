@@ -72,11 +72,19 @@ class StateReader:
         # shuffle stores byte 0 of every element, then byte 1, ...: undo it
         return np.ascontiguousarray(flat.reshape(4, -1).T).view(np.float32).reshape(self.rows, self.width)
 
-    def _load(self, chunks: Iterable[int]) -> None:
-        """Decompress the chunks not yet in the cache (all cores), then cache them."""
-        todo = [c for c in dict.fromkeys(chunks) if c not in self.cache]
+    def _load(self, chunks: Iterable[int]) -> dict[int, np.ndarray]:
+        """The chunks asked for, decompressing those not yet in the cache (all cores), then
+        caching them.  The blocks are returned, not looked up again: caching the new ones may
+        evict chunks of the same request (those already cached, the least recently used)."""
+        want = list(dict.fromkeys(chunks))
+        got: dict[int, np.ndarray] = {}
+        for c in want:
+            if c in self.cache:
+                self.cache.move_to_end(c)
+                got[c] = self.cache[c]
+        todo = [c for c in want if c not in got]
         if not todo:
-            return
+            return got
         raws = []
         for c in todo:
             mask, raw = self.ds.id.read_direct_chunk((c * self.rows, 0))
@@ -97,6 +105,8 @@ class StateReader:
                 part = self.ds[a : min(a + self.rows, self.shape[0])]
                 block[: len(part)] = part
             self._put(c, block)
+            got[c] = block
+        return got
 
     def _put(self, c: int, block: np.ndarray) -> None:
         self.cache[c] = block
@@ -128,11 +138,10 @@ class StateReader:
         if len(chunks) * self.rows * self.width * 4 > self.cache_bytes // 2:
             return self.ds[key]  # a long run of rows: HDF5 reads it as well as we would
         with self._lock:
-            self._load(chunks)
+            blocks = self._load(chunks)
             parts = []
             for c in chunks:
-                block = self.cache[c]
-                self.cache.move_to_end(c)
+                block = blocks[c]
                 lo, hi = max(a, c * self.rows), min(b, (c + 1) * self.rows)
                 parts.append(block[lo - c * self.rows : hi - c * self.rows])
             return np.concatenate(parts) if len(parts) > 1 else parts[0].copy()

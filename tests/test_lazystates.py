@@ -53,3 +53,21 @@ def test_rows_equal_h5py_and_the_written_data(states_file, name):
         np.testing.assert_array_equal(r[5:5], np.zeros((0, 7), np.float32))
         np.testing.assert_array_equal(r[: len(data)], data)  # a long read goes through h5py
         r.close()
+
+
+def test_a_read_whose_new_chunks_evict_its_cached_ones(states_file):
+    """A slice over a cached chunk (the least recently used) and an uncached one: caching the
+    new chunk evicts the old one, and the read still returns both (a 1,000,000-edge
+    evaluation on the H100 stopped here with a KeyError)."""
+    path, data = states_file
+    with h5py.File(path, "r") as f:
+        ds = f["h5py"]  # chunks of 1,000 rows, shuffle + deflate: the fast path
+        chunk = 1000 * 7 * 4
+        r = StateReader(ds, cache_bytes=4 * chunk, threads=1)
+        assert r.fast and r.rows == 1000
+        for a in (0, 5000, 6000, 7000):  # the cache full: chunks 0, 5, 6, 7
+            np.testing.assert_array_equal(r[a : a + 1], data[a : a + 1])
+        assert list(r.cache) == [0, 5, 6, 7] and r.held == r.cache_bytes
+        np.testing.assert_array_equal(r[999:1001], data[999:1001])  # chunks 0 (cached) and 1 (new)
+        assert r.held <= r.cache_bytes and 1 in r.cache
+        r.close()
