@@ -26,7 +26,10 @@ After an edge the arm often stands inside the margins (it pushed something): the
 of the next action then begin with a `retreat` back along that edge until the arm is clear
 (`came_from`; or, where the way back crosses an object the push moved, only until it is out
 of every margin); where there is none, a transit may leave the margins directly, never going
-deeper on the way out, never entering another object's.  Nothing here chooses actions.
+deeper on the way out, never entering another object's.  Where even that gives an edge no
+transit (the arm wedged between objects the push moved behind it), the edge's transit begins
+with an `escape`: small joint steps that each go no deeper into any margin, until the arm is
+clear.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ LEAVE_TOLERANCE = 0.0002  # a transit leaving a contact may come this much neare
 RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outside the scene's margins [m]
 RETREAT_STEP = 0.05  # the retreat's waypoints: at least this far apart (largest joint motion) [rad]
 NEAR_SPEED = 0.1  # inside the margins the arm moves at this fraction of the transits' speed
+ESCAPE_STEP = 0.01  # the way out of a jam (`escape`): largest joint motion of one step [rad]
+ESCAPE_STEPS = 100  # ... at most this many steps
+ESCAPE_DIRS = 64  # ... directions tried at each step besides the free joints' own
 TRAIL_NODES = 1024  # the way back (`trail_back`): at most this many nodes, RETREAT_STEP apart (to the park pose)
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
@@ -117,7 +123,7 @@ class Action:
     qd: np.ndarray  # (T, nq)
     transit_steps: int  # the first transit_steps rows move to the edge's start
     via_park: bool  # the transit is not the straight line (through the park pose, or the roadmap)
-    route: str = "direct"  # the transit: "direct", "park" (through the park pose) or "roadmap"
+    route: str = "direct"  # the transit: "direct", "park" (through the park pose), "roadmap"; "escape+" any of them
     edge_states: int = -1  # the edge's states executed (fewer than its own where a fixed obstacle cuts it short)
 
     @property
@@ -155,7 +161,8 @@ class TransitPlanner:
         self._scene_version = 0
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
-        self._retreat: tuple = (None, None)  # (where from, along what, in which scene) -> the retreat
+        self._retreat: tuple = (None, None, False)  # (where from, along what, in which scene) -> the retreat, jammed
+        self._escape: tuple = (None, None)  # (where from, in which scene) -> the `escape`
         self._trail: tuple = (None, None)  # (where from, how long a trail, in which scene) -> `trail_back`
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
@@ -397,11 +404,11 @@ class TransitPlanner:
                 return way
         return None
 
-    def _back_along(self, q_now: np.ndarray, back: np.ndarray) -> np.ndarray | None:
+    def _back_along(self, q_now: np.ndarray, back: np.ndarray, every: bool = False) -> np.ndarray | None:
         """Joint targets from q_now through the states `back` (waypoints RETREAT_STEP apart,
-        the last kept) at NEAR_SPEED, or None where `_leaves_cleanly` or the table and the
-        arm forbid it."""
-        way = np.asarray([q_now, *_spaced(q_now, back[:-1]), back[-1]])
+        the last kept; `every`: all of them) at NEAR_SPEED, or None where `_leaves_cleanly` or
+        the table and the arm forbid it."""
+        way = np.asarray([q_now, *(back[:-1] if every else _spaced(q_now, back[:-1])), back[-1]])
         dq = np.diff(way, axis=0)
         n, fine = self._timing(dq, True)
         checks = np.concatenate([way[i] + np.outer(np.arange(1, f + 1) / f, dq[i]) for i, f in enumerate(fine)])
@@ -412,6 +419,62 @@ class TransitPlanner:
         if hits[-1] or np.any(hits[1:] & free_before) or not self._leaves_cleanly(slack[0], slack[1:]):
             return None
         return np.concatenate([way[i] + np.outer(np.arange(1, k + 1) / k, dq[i]) for i, k in enumerate(n)])
+
+    def escape(self, q_now: np.ndarray) -> np.ndarray | None:
+        """Joint targets (T, nq) taking the arm out of the scene's margins when it stands
+        inside them and neither the way back (`retreat`) nor a transit from where it stands
+        exists (a push left it wedged between objects that moved behind it): steps of
+        ESCAPE_STEP (largest joint motion, free joints only, within the joint limits), each
+        the best of a fixed set of directions (each free joint either way, and ESCAPE_DIRS
+        seeded mixtures of them) by the smallest slack it leaves to any box's margin, among
+        those that go no deeper (LEAVE_TOLERANCE) into a margin the arm is in and enter no
+        other, the movable objects' margins reduced to JAM_MARGIN as on `to_park`'s way out of
+        a jam; until the arm keeps RETREAT_SLACK outside every full margin (where ESCAPE_STEPS
+        steps never do, the arm wedged in a gap, up to the first step outside them all).  The
+        path, all its steps, is then checked like a retreat (`_back_along`, with the same
+        margins: at NEAR_SPEED, every check along it; the table and the arm itself).  None if
+        no step is allowed or none gets the arm out."""
+        if self.scene is None:
+            return None
+        q = np.asarray(q_now, np.float64).copy()
+        free = np.asarray(self.failure.free(len(q)))
+        axes = np.zeros((2 * len(free), len(q)))
+        axes[np.arange(len(free)), free] = 1.0
+        axes[len(free) + np.arange(len(free)), free] = -1.0
+        mix = np.zeros((ESCAPE_DIRS, len(q)))
+        mix[:, free] = np.random.default_rng(0).uniform(-1.0, 1.0, (ESCAPE_DIRS, len(free)))
+        dirs = np.concatenate([axes, mix / np.abs(mix).max(axis=1, keepdims=True)])
+        relax = (OBJECT_MARGIN - JAM_MARGIN) * self.scene.movable  # (nb,) added to the full margins' slacks
+        slack = self.scene_slacks(q[None])[0]
+        way, least = [], []  # the steps, and the smallest full-margin slack after each
+        for _ in range(ESCAPE_STEPS):
+            if slack.min() >= RETREAT_SLACK:
+                break
+            qs = np.clip(q + ESCAPE_STEP * dirs, self.robot.lower, self.robot.upper)
+            after = self.scene_slacks(qs)  # (n_dirs, nb), full margins
+            now, then = slack + relax, after + relax
+            allowed = np.all(np.where(now < 0, then >= now - LEAVE_TOLERANCE, then >= 0), axis=1)
+            allowed &= ~self.colliding_batch(qs)
+            if not allowed.any():
+                return None
+            kept = np.minimum(after, RETREAT_SLACK)
+            score = np.where(allowed, kept.min(axis=1) + 1e-3 * kept.sum(axis=1), -np.inf)
+            best = int(np.argmax(score))
+            q, slack = qs[best], after[best]
+            way.append(q.copy())
+            least.append(float(slack.min()))
+        else:  # never RETREAT_SLACK out (wedged in a gap): as far as the first step outside every margin
+            out = np.nonzero(np.asarray(least) >= 0)[0]
+            if not len(out):
+                return None
+            way = way[: out[0] + 1]
+        if not way:
+            return None
+        self._relax = OBJECT_MARGIN - JAM_MARGIN
+        try:
+            return self._back_along(np.asarray(q_now, np.float64), np.asarray(way), every=True)
+        finally:
+            self._relax = 0.0
 
     def trail_back(self, source: np.ndarray, trail: np.ndarray) -> np.ndarray:
         """The way the arm came, back from `source`, as roadmap nodes (k, nj): the states of
@@ -452,12 +515,14 @@ class TransitPlanner:
         so far (oldest first); the roadmap may take the way back along it (`trail_back`)."""
         out: list[Action] = []
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
+        jammed = False  # inside the margins with no way back: transits may begin with the `escape`
         if came_from is not None and self.scene is not None:
             key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self._scene_version)
             if self._retreat[0] != key:  # a decision asks again and again (Lazy, one edge at a time)
-                inside = self.scene_slack(q_now[None])[0] < 0
-                self._retreat = (key, self.retreat(q_now, came_from) if inside else None)
-            back = self._retreat[1]
+                inside = bool(self.scene_slack(q_now[None])[0] < 0)
+                back = self.retreat(q_now, came_from) if inside else None
+                self._retreat = (key, back, inside and back is None)
+            back, jammed = self._retreat[1], self._retreat[2]
             if back is not None:
                 lead, q_now = back, back[-1]  # transits are planned from the retreat's end
         block = max(want, MIN_BLOCK)
@@ -481,15 +546,52 @@ class TransitPlanner:
                 road = {j: f for j, f in zip(rest, found, strict=True) if f is not None}
             else:
                 road = {}
-            ok = [j for j in range(len(part)) if direct[j] is not None or j in via or j in road]
+            ways: dict[int, tuple[str, np.ndarray]] = {}  # j -> (route, what the arm does before the edge)
+            for j in range(len(part)):
+                if direct[j] is not None:
+                    ways[j] = ("direct", np.concatenate([lead, direct[j]]))
+                elif j in via:
+                    ways[j] = ("park", np.concatenate([lead, via[j]]))
+                elif j in road:
+                    ways[j] = ("roadmap", np.concatenate([lead, road[j]]))
+            stuck = [j for j in range(len(part)) if j not in ways]
+            if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
+                for j, (route, transit) in self._after_escape(bundle, part, starts, stuck, q_now, trail).items():
+                    ways[j] = ("escape+" + route, transit)
+            ok = sorted(ways)
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
-                route = "direct" if direct[j] is not None else "park" if j in via else "roadmap"
-                transit = {"direct": direct, "park": via, "roadmap": road}[route][j]
-                out.append(_action(bundle, int(part[j]), q_arm, np.concatenate([lead, transit]), route, int(prefix[j])))
+                route, transit = ways[j]
+                out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j])))
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
+        return out
+
+    def _after_escape(
+        self, bundle: Bundle, part: np.ndarray, starts: np.ndarray, idx: list[int], q_now: np.ndarray, trail
+    ) -> dict[int, tuple[str, np.ndarray]]:
+        """Transits for part[idx] that begin with the `escape` from q_now (once per decision):
+        then straight, through the park pose or along the roadmap, as from anywhere else."""
+        key = (q_now.tobytes(), self._scene_version)
+        if self._escape[0] != key:
+            self._escape = (key, self.escape(q_now))
+        esc = self._escape[1]
+        if esc is None:
+            return {}
+        q_e = esc[-1]
+        direct = self.segments(np.repeat(q_e[None], len(idx), axis=0), starts[idx])
+        out = {j: ("direct", np.concatenate([esc, d])) for j, d in zip(idx, direct, strict=True) if d is not None}
+        rest = [j for j in idx if j not in out]
+        for j, t in self._via_park(bundle, part, q_e, rest).items():
+            out[j] = ("park", np.concatenate([esc, t]))
+        rest = [j for j in rest if j not in out]
+        if rest and self.search:
+            back = None if trail is None else self._trail_back(q_e, trail)
+            found = self.roadmap(bundle).transits(q_e, starts[rest], back)
+            for j, f in zip(rest, found, strict=True):
+                if f is not None:
+                    out[j] = ("roadmap", np.concatenate([esc, f]))
         return out
 
     def _trail_back(self, q_now: np.ndarray, trail: np.ndarray) -> np.ndarray:

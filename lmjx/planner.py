@@ -114,7 +114,7 @@ class StepRecord:
     transit_contacts: tuple[str, ...] = ()
     transit_hit_fixed: bool = False
     transit_left: tuple[str, ...] = ()
-    transit_route: str = ""  # "direct", "park" or "roadmap" (`Action.route`)
+    transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
 
     def __repr__(self) -> str:

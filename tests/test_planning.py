@@ -632,3 +632,76 @@ def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     path = alone.transits(q0, q1[None], back)[0]
     assert path is not None and np.allclose(path[-1], q1)
     check(path)
+
+
+def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map):
+    """A push can leave the arm inside the scene's margins with no way back along its edge
+    (`retreat` finds none: here the edge is the arm's own pose alone, the hand between two
+    objects).  `escape` then takes
+    it out: by C MuJoCo's mj_geomDistance its clearance to the objects never falls more than
+    LEAVE_TOLERANCE below where it stood or JAM_MARGIN (whichever is lower) at any control
+    step, and ends at least OBJECT_MARGIN clear; the table and the arm itself stay clear (C
+    MuJoCo's contacts), the locked joints and the joint limits are kept.  Edges with no
+    transit from where the arm stands are offered after it ("escape+..." routes, the escape
+    first); the others exactly as when the arm is not jammed.  Transits from the escape's end
+    begin with it, end at their edge's start and keep OBJECT_MARGIN after it."""
+    from lmjx.actions import JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN
+
+    m = load_map(plan_map)
+    sc = scenario(1, tasks="hard")
+    scene = build_scene(robot, sc)
+    model, d = scene.model, mujoco.MjData(scene.model)
+    tp = TransitPlanner(robot, m.failure, batched=True, search=False)  # (no roadmap: cheaper, the same checks)
+    starts = m.edges.q_start[:400].astype(np.float64)
+    q0 = starts[~tp.colliding_batch(starts)][7]
+    objects = np.array([[5.0 + k, 5.0, 0.5, 1.0, 0.0, 0.0, 0.0] for k in range(len(sc.movable))])
+    set_state(scene, d, q0, objects)
+    clearance = arm_clearance_fn(robot, scene, d)
+    movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
+    hand = d.site_xpos[model.site(robot.mj.site(robot.tcp_site).name).id].copy()
+    for k, side in ((0, 1.0), (1, -1.0)):  # the target on one side of the hand, an object on the other,
+        lo, hi = 0.0, 0.3  # each 6 mm from the arm: the arm wedged inside both margins
+        for _ in range(40):
+            objects[k, :3] = hand + np.array([side * (lo + hi) / 2, 0.0, 0.0])
+            set_state(scene, d, q0, objects)
+            lo, hi = ((lo + hi) / 2, hi) if clearance(q0, movable[k : k + 1]) < 0.006 else (lo, (lo + hi) / 2)
+    start = clearance(q0, movable)
+    assert 0.005 < start < OBJECT_MARGIN and clearance(q0, movable[1:2]) < OBJECT_MARGIN
+    tp.set_scene(sc, objects)
+    assert tp.retreat(q0, q0[None]) is None
+    path = tp.escape(q0)
+    assert path is not None
+    gaps = np.array([clearance(q, movable) for q in path])
+    assert gaps.min() >= min(start, JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4
+    assert gaps[-1] >= OBJECT_MARGIN - 1e-4
+    locked = [j - 1 for j in m.failure.locked_joints]
+    np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
+    assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
+    for q in path:
+        d.qpos[scene.robot_qpos] = q
+        mujoco.mj_forward(model, d)
+        assert not any(
+            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 for c in d.contact[: d.ncon]
+        )
+    edges = np.arange(10)  # edges anywhere (not only over the target: `acting` off)
+    tp.set_scene(sc, objects, acting=False)
+    acts = tp.actions(m.edges, edges, q0, len(edges), q0[None])  # jammed: the escape for edges with no way
+    plain = {a.edge: a for a in tp.actions(m.edges, edges, q0, len(edges))}  # not jammed: no escape
+    assert plain and len(acts) >= len(plain)
+    for a in acts:
+        if a.route.startswith("escape+"):
+            assert a.edge not in plain
+            np.testing.assert_array_equal(a.q[: len(path)], path)
+        else:
+            np.testing.assert_allclose(a.q, plain[a.edge].q, rtol=0, atol=1e-12)
+    # the transits after the escape, for edges that have one from where the arm stands too:
+    # they begin with the escape, end at the edge's start and keep the full margin after it
+    part = np.array(sorted(plain))[:3]
+    starts = m.edges.q_start[part].astype(np.float64)
+    after = tp._after_escape(m.edges, part, starts, list(range(len(part))), q0, None)
+    assert after
+    for j, (route, transit) in after.items():
+        assert route in ("direct", "park")
+        np.testing.assert_array_equal(transit[: len(path)], path)
+        np.testing.assert_allclose(transit[-1], starts[j], atol=1e-9)
+        assert min(clearance(q, movable) for q in transit[len(path) :]) >= OBJECT_MARGIN - 1e-4
