@@ -35,7 +35,9 @@ clear.  Nothing here chooses actions.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -573,10 +575,7 @@ class TransitPlanner:
     ) -> dict[int, tuple[str, np.ndarray]]:
         """Transits for part[idx] that begin with the `escape` from q_now (once per decision):
         then straight, through the park pose or along the roadmap, as from anywhere else."""
-        key = (q_now.tobytes(), self._scene_version)
-        if self._escape[0] != key:
-            self._escape = (key, self.escape(q_now))
-        esc = self._escape[1]
+        esc = self._memo("_escape", (q_now.tobytes(), self._scene_version), lambda: self.escape(q_now))
         if esc is None:
             return {}
         q_e = esc[-1]
@@ -597,9 +596,16 @@ class TransitPlanner:
     def _trail_back(self, q_now: np.ndarray, trail: np.ndarray) -> np.ndarray:
         """`trail_back`, once per decision (Lazy asks one edge at a time)."""
         key = (q_now.tobytes(), len(trail), self._scene_version)
-        if self._trail[0] != key:
-            self._trail = (key, self.trail_back(q_now, trail))
-        return self._trail[1]
+        return self._memo("_trail", key, lambda: self.trail_back(q_now, trail))
+
+    def _memo(self, slot: str, key: tuple, make: Callable[[], Any]) -> Any:
+        """What `make()` returns, kept in the attribute `slot` as (key, value) until the key
+        changes (one decision asks again and again: Lazy, one edge at a time)."""
+        held = getattr(self, slot)
+        if held[0] != key:
+            held = (key, make())
+            setattr(self, slot, held)
+        return held[1]
 
     def roadmap(self, bundle: Bundle) -> Roadmap:
         """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle)."""
@@ -646,10 +652,7 @@ class TransitPlanner:
         """Transits through the park pose for part[idx]: q_now -> park, then park -> start."""
         if not idx:
             return {}
-        key_now = (q_now.tobytes(), self._scene_version)
-        if self._to_park[0] != key_now:
-            self._to_park = (key_now, self.to_park(q_now))
-        first = self._to_park[1]
+        first = self._memo("_to_park", (q_now.tobytes(), self._scene_version), lambda: self.to_park(q_now))
         if first is None:
             return {}
         key = id(bundle)
