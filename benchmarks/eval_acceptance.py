@@ -64,6 +64,8 @@ def paper_checks(c: dict) -> list[tuple[str, bool, str]]:
         for s in {k[1] for k in c}
         if all(c.get((f, s, a), {}).get("trials", 0) >= TRIALS for f in ("case1", "case2") for a in ASMS)
     )
+    if not scen:  # no scenario complete for every ASM and both failures: nothing to judge
+        return [("paper set: a complete scenario (15 trials of every ASM, both failures)", False, "none")]
     g = {s: c[("case1", s, "greedy")]["success"] for s in scen}
     lz = {s: c[("case1", s, "lazy")]["success"] for s in scen}
     rd = {s: c[("case1", s, "random")]["success"] for s in scen}

@@ -60,6 +60,7 @@ NEAR_SPEED = 0.1  # inside the margins the arm moves at this fraction of the tra
 ESCAPE_STEP = 0.01  # the way out of a jam (`escape`): largest joint motion of one step [rad]
 ESCAPE_STEPS = 100  # ... at most this many steps
 ESCAPE_DIRS = 64  # ... directions tried at each step besides the free joints' own
+MEMO_KEYS = 4  # per-decision caches (`_memo`): the latest this many keys
 TRAIL_NODES = 1024  # the way back (`trail_back`): at most this many nodes, RETREAT_STEP apart (to the park pose)
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
@@ -162,10 +163,10 @@ class TransitPlanner:
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
         self._scene_version = 0
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
-        self._to_park: tuple = (None, None)  # (where from, in which scene) -> the transit to the park pose
+        self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: tuple = (None, None, False)  # (where from, along what, in which scene) -> the retreat, jammed
-        self._escape: tuple = (None, None)  # (where from, in which scene) -> the `escape`
-        self._trail: tuple = (None, None)  # (where from, how long a trail, in which scene) -> `trail_back`
+        self._escape: dict = {}  # (where from, in which scene) -> the `escape` (`_memo`)
+        self._trail: dict = {}  # (where from, how long a trail, in which scene) -> `trail_back` (`_memo`)
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
@@ -429,8 +430,8 @@ class TransitPlanner:
         ESCAPE_STEP (largest joint motion, free joints only, within the joint limits), each
         the best of a fixed set of directions (each free joint either way, and ESCAPE_DIRS
         seeded mixtures of them) by the smallest slack it leaves to any box's margin, among
-        those that go no deeper (LEAVE_TOLERANCE) into a margin the arm is in and enter no
-        other, the movable objects' margins reduced to JAM_MARGIN as on `to_park`'s way out of
+        those that go no deeper (LEAVE_TOLERANCE) into a margin than the arm began and enter no
+        other nor one it has left, the movable objects' margins reduced to JAM_MARGIN as on `to_park`'s way out of
         a jam; until the arm keeps RETREAT_SLACK outside every full margin (where ESCAPE_STEPS
         steps never do, the arm wedged in a gap, up to the first step outside them all).  The
         path, all its steps, is then checked like a retreat (`_back_along`, with the same
@@ -448,14 +449,16 @@ class TransitPlanner:
         dirs = np.concatenate([axes, mix / np.abs(mix).max(axis=1, keepdims=True)])
         relax = (OBJECT_MARGIN - JAM_MARGIN) * self.scene.movable  # (nb,) added to the full margins' slacks
         slack = self.scene_slacks(q[None])[0]
+        start = slack + relax  # against the reduced margins: how deep the arm began in each
+        was_out = start >= 0  # boxes whose (reduced) margin the arm has been outside: never again inside
         way, least = [], []  # the steps, and the smallest full-margin slack after each
         for _ in range(ESCAPE_STEPS):
             if slack.min() >= RETREAT_SLACK:
                 break
             qs = np.clip(q + ESCAPE_STEP * dirs, self.robot.lower, self.robot.upper)
             after = self.scene_slacks(qs)  # (n_dirs, nb), full margins
-            now, then = slack + relax, after + relax
-            allowed = np.all(np.where(now < 0, then >= now - LEAVE_TOLERANCE, then >= 0), axis=1)
+            then = after + relax
+            allowed = np.all(np.where(was_out, then >= 0, then >= start - LEAVE_TOLERANCE), axis=1)
             allowed &= ~self.colliding_batch(qs)
             if not allowed.any():
                 return None
@@ -463,6 +466,7 @@ class TransitPlanner:
             score = np.where(allowed, kept.min(axis=1) + 1e-3 * kept.sum(axis=1), -np.inf)
             best = int(np.argmax(score))
             q, slack = qs[best], after[best]
+            was_out |= slack + relax >= 0
             way.append(q.copy())
             least.append(float(slack.min()))
         else:  # never RETREAT_SLACK out (wedged in a gap): as far as the first step outside every margin
@@ -514,7 +518,9 @@ class TransitPlanner:
         inside the scene's margins (it pushed something), every transit begins with the
         `retreat` along it; without one (none given, or none clear) a transit may leave the
         margins directly, never going deeper.  `trail`: every joint target the arm followed
-        so far (oldest first); the roadmap may take the way back along it (`trail_back`)."""
+        so far (oldest first); the roadmap may take the way back along it (`trail_back`).
+        Where the arm stands inside the margins with no retreat, an edge with no transit from
+        there is offered after the `escape` ("escape+" routes), in its place in the order."""
         out: list[Action] = []
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
         jammed = False  # inside the margins with no way back: transits may begin with the `escape`
@@ -599,13 +605,15 @@ class TransitPlanner:
         return self._memo("_trail", key, lambda: self.trail_back(q_now, trail))
 
     def _memo(self, slot: str, key: tuple, make: Callable[[], Any]) -> Any:
-        """What `make()` returns, kept in the attribute `slot` as (key, value) until the key
-        changes (one decision asks again and again: Lazy, one edge at a time)."""
+        """What `make()` returns, kept in the dict attribute `slot` under `key` (one decision
+        asks again and again: Lazy, one edge at a time; a jammed arm asks from where it stands
+        and from the escape's end): the MEMO_KEYS latest keys."""
         held = getattr(self, slot)
-        if held[0] != key:
-            held = (key, make())
-            setattr(self, slot, held)
-        return held[1]
+        if key not in held:
+            if len(held) >= MEMO_KEYS:
+                del held[next(iter(held))]
+            held[key] = make()
+        return held[key]
 
     def roadmap(self, bundle: Bundle) -> Roadmap:
         """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle)."""

@@ -634,7 +634,7 @@ def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     check(path)
 
 
-def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map):
+def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch):
     """A push can leave the arm inside the scene's margins with no way back along its edge
     (`retreat` finds none: here the edge is the arm's own pose alone, the hand between two
     objects).  `escape` then takes
@@ -671,9 +671,11 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map):
     assert tp.retreat(q0, q0[None]) is None
     path = tp.escape(q0)
     assert path is not None
-    gaps = np.array([clearance(q, movable) for q in path])
-    assert gaps.min() >= min(start, JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4
-    assert gaps[-1] >= OBJECT_MARGIN - 1e-4
+    for k in (0, 1):  # each object against where the arm began beside it
+        gaps = np.array([clearance(q, movable[k : k + 1]) for q in path])
+        began = clearance(q0, movable[k : k + 1])
+        assert gaps.min() >= min(began, JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4
+        assert gaps[-1] >= OBJECT_MARGIN - 1e-4
     locked = [j - 1 for j in m.failure.locked_joints]
     np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
     assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
@@ -705,3 +707,19 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map):
         np.testing.assert_array_equal(transit[: len(path)], path)
         np.testing.assert_allclose(transit[-1], starts[j], atol=1e-9)
         assert min(clearance(q, movable) for q in transit[len(path) :]) >= OBJECT_MARGIN - 1e-4
+    # where no edge has a transit from where the arm stands (every straight line from q0
+    # refused, so neither a direct transit nor a way to the park pose), the edges are offered
+    # after the escape, in their order
+    segments = tp.segments
+
+    def none_from_q0(a, b):
+        return [None if np.array_equal(x, q0) else w for x, w in zip(a, segments(a, b), strict=True)]
+
+    monkeypatch.setattr(tp, "segments", none_from_q0)
+    tp.set_scene(sc, objects, acting=False)  # a new scene: nothing cached from above
+    assert not tp.actions(m.edges, edges, q0, len(edges))  # not jammed: nothing
+    jam = tp.actions(m.edges, edges, q0, len(edges), q0[None])
+    assert jam and all(a.route.startswith("escape+") for a in jam)
+    assert [a.edge for a in jam] == sorted(a.edge for a in jam)
+    for a in jam:
+        np.testing.assert_array_equal(a.q[: len(path)], path)
