@@ -14,9 +14,11 @@
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it.  `lmjx evaluate` sizes its pools to the cores it is pinned to
 # (lmjx/cores.py).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one per
-# launch, so a later launch with other code leaves the running ones alone).  `wait` returns after WAIT_S seconds or when every run has
-# ended, prints each run's trials and state, and packs every run's results.json and the
-# tail of its log into $OUT/ev.tgz (merge with benchmarks/eval_acceptance.py --merge).
+# launch, so a later launch with other code leaves the running ones alone).  `wait` returns
+# after WAIT_S seconds or when every run has ended, prints each run's trials and state, and
+# packs every run's results.json and the tail of its log into $OUT/ev.tgz (merge with
+# benchmarks/eval_acceptance.py --merge).  The machine goes back 30 s after a call ends,
+# whatever runs on it: keep `wait` calls coming back to back.
 set -uo pipefail
 WORK=/tmp/lmjx_gpu
 OUT=${OUT:-$PWD/out/gpu}

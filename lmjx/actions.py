@@ -164,7 +164,7 @@ class TransitPlanner:
         self._scene_version = 0
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
-        self._retreat: tuple = (None, None, False)  # (where from, along what, in which scene) -> the retreat, jammed
+        self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
         self._escape: dict = {}  # (where from, in which scene) -> the `escape` (`_memo`)
         self._trail: dict = {}  # (where from, how long a trail, in which scene) -> `trail_back` (`_memo`)
         self.scene: SceneBoxes | None = None
@@ -430,13 +430,13 @@ class TransitPlanner:
         ESCAPE_STEP (largest joint motion, free joints only, within the joint limits), each
         the best of a fixed set of directions (each free joint either way, and ESCAPE_DIRS
         seeded mixtures of them) by the smallest slack it leaves to any box's margin, among
-        those that go no deeper (LEAVE_TOLERANCE) into a margin than the arm began and enter no
-        other nor one it has left, the movable objects' margins reduced to JAM_MARGIN as on `to_park`'s way out of
-        a jam; until the arm keeps RETREAT_SLACK outside every full margin (where ESCAPE_STEPS
-        steps never do, the arm wedged in a gap, up to the first step outside them all).  The
-        path, all its steps, is then checked like a retreat (`_back_along`, with the same
-        margins: at NEAR_SPEED, every check along it; the table and the arm itself).  None if
-        no step is allowed or none gets the arm out."""
+        those that go no deeper (LEAVE_TOLERANCE) into a margin than the arm began and enter
+        no other nor one it has left, the movable objects' margins reduced to JAM_MARGIN as on
+        `to_park`'s way out of a jam; until the arm keeps RETREAT_SLACK outside every full
+        margin (where ESCAPE_STEPS steps never do, the arm wedged in a gap, up to the first step
+        outside them all).  The path, all its steps, is then checked like a retreat
+        (`_back_along`, with the same margins: at NEAR_SPEED, every check along it; the table
+        and the arm itself).  None if no step is allowed or none gets the arm out."""
         if self.scene is None:
             return None
         q = np.asarray(q_now, np.float64).copy()
@@ -525,12 +525,14 @@ class TransitPlanner:
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
         jammed = False  # inside the margins with no way back: transits may begin with the `escape`
         if came_from is not None and self.scene is not None:
-            key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self._scene_version)
-            if self._retreat[0] != key:  # a decision asks again and again (Lazy, one edge at a time)
+
+            def way_back() -> tuple[np.ndarray | None, bool]:  # the retreat, and whether the arm is jammed
                 inside = bool(self.scene_slack(q_now[None])[0] < 0)
                 back = self.retreat(q_now, came_from) if inside else None
-                self._retreat = (key, back, inside and back is None)
-            back, jammed = self._retreat[1], self._retreat[2]
+                return back, inside and back is None
+
+            key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self._scene_version)
+            back, jammed = self._memo("_retreat", key, way_back)
             if back is not None:
                 lead, q_now = back, back[-1]  # transits are planned from the retreat's end
         block = max(want, MIN_BLOCK)
@@ -545,27 +547,13 @@ class TransitPlanner:
             if not len(part):
                 continue
             starts = bundle.q_start[part].astype(np.float64)
-            direct = self.segments(np.repeat(q_now[None], len(part), axis=0), starts)
-            via = self._via_park(bundle, part, q_now, [j for j, p in enumerate(direct) if p is None])
-            rest = [j for j, p in enumerate(direct) if p is None and j not in via]
-            if rest and self.search:
-                back = None if trail is None else self._trail_back(q_now, trail)
-                found = self.roadmap(bundle).transits(q_now, starts[rest], back)
-                road = {j: f for j, f in zip(rest, found, strict=True) if f is not None}
-            else:
-                road = {}
-            ways: dict[int, tuple[str, np.ndarray]] = {}  # j -> (route, what the arm does before the edge)
-            for j in range(len(part)):
-                if direct[j] is not None:
-                    ways[j] = ("direct", np.concatenate([lead, direct[j]]))
-                elif j in via:
-                    ways[j] = ("park", np.concatenate([lead, via[j]]))
-                elif j in road:
-                    ways[j] = ("roadmap", np.concatenate([lead, road[j]]))
+            ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
             stuck = [j for j in range(len(part)) if j not in ways]
             if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
-                for j, (route, transit) in self._after_escape(bundle, part, starts, stuck, q_now, trail).items():
-                    ways[j] = ("escape+" + route, transit)
+                esc = self._memo("_escape", (q_now.tobytes(), self._scene_version), lambda: self.escape(q_now))
+                if esc is not None:
+                    for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc, trail).items():
+                        ways[j] = ("escape+" + route, transit)
             ok = sorted(ways)
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
@@ -576,27 +564,32 @@ class TransitPlanner:
             block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
 
-    def _after_escape(
-        self, bundle: Bundle, part: np.ndarray, starts: np.ndarray, idx: list[int], q_now: np.ndarray, trail
+    def _ways(
+        self,
+        bundle: Bundle,
+        part: np.ndarray,
+        starts: np.ndarray,
+        idx: list[int],
+        q_from: np.ndarray,
+        lead: np.ndarray,
+        trail: np.ndarray | None,
     ) -> dict[int, tuple[str, np.ndarray]]:
-        """Transits for part[idx] that begin with the `escape` from q_now (once per decision):
-        then straight, through the park pose or along the roadmap, as from anywhere else."""
-        esc = self._memo("_escape", (q_now.tobytes(), self._scene_version), lambda: self.escape(q_now))
-        if esc is None:
-            return {}
-        q_e = esc[-1]
-        direct = self.segments(np.repeat(q_e[None], len(idx), axis=0), starts[idx])
-        out = {j: ("direct", np.concatenate([esc, d])) for j, d in zip(idx, direct, strict=True) if d is not None}
+        """Transits from q_from to the starts of part[idx] (`starts`: those of all of part),
+        each after `lead` (what the arm does first): j -> (route, joint targets), straight
+        where it can, else through the park pose, else along the roadmap; none for j where
+        all three are blocked."""
+        direct = self.segments(np.repeat(q_from[None], len(idx), axis=0), starts[idx])
+        out = {j: ("direct", np.concatenate([lead, d])) for j, d in zip(idx, direct, strict=True) if d is not None}
         rest = [j for j in idx if j not in out]
-        for j, t in self._via_park(bundle, part, q_e, rest).items():
-            out[j] = ("park", np.concatenate([esc, t]))
+        for j, t in self._via_park(bundle, part, q_from, rest).items():
+            out[j] = ("park", np.concatenate([lead, t]))
         rest = [j for j in rest if j not in out]
         if rest and self.search:
-            back = None if trail is None else self._trail_back(q_e, trail)
-            found = self.roadmap(bundle).transits(q_e, starts[rest], back)
+            back = None if trail is None else self._trail_back(q_from, trail)
+            found = self.roadmap(bundle).transits(q_from, starts[rest], back)
             for j, f in zip(rest, found, strict=True):
                 if f is not None:
-                    out[j] = ("roadmap", np.concatenate([esc, f]))
+                    out[j] = ("roadmap", np.concatenate([lead, f]))
         return out
 
     def _trail_back(self, q_now: np.ndarray, trail: np.ndarray) -> np.ndarray:

@@ -121,9 +121,10 @@ def _duration(s: float) -> str:
 def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
     """Estimated size and time of a build of n edges (before any work)."""
     gpu = platform != "cpu"
-    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * usable_cores()
+    cores = usable_cores()
+    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * cores
     seconds = n / rate + COMPILE_SECONDS["gpu" if gpu else "cpu"]
-    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {usable_cores()}"
+    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {cores}"
     basis = f"{rate:,.0f} edges/s, from rates measured on {where}"
     parent = out.parent if str(out.parent) else Path(".")
     return Preflight(

@@ -700,7 +700,7 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     # they begin with the escape, end at the edge's start and keep the full margin after it
     part = np.array(sorted(plain))[:3]
     starts = m.edges.q_start[part].astype(np.float64)
-    after = tp._after_escape(m.edges, part, starts, list(range(len(part))), q0, None)
+    after = tp._ways(m.edges, part, starts, list(range(len(part))), path[-1], path, None)  # from the escape's end
     assert after
     for j, (route, transit) in after.items():
         assert route in ("direct", "park")
