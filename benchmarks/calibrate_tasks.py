@@ -20,6 +20,11 @@ failure and scenario serves every candidate.
 
     python benchmarks/calibrate_tasks.py --maps maps --trials 30 --out benchmarks/calibration.json
 
+In parts, on many cores (each part a process; then merged and scored):
+
+    python benchmarks/calibrate_tasks.py --maps maps --failures case1 --scenarios 2 --first 4 --trials 2 --out part.json
+    python benchmarks/calibrate_tasks.py --from-runs part*.json --out calibration.json [--apply]
+
 Selection rule (fixed before looking at the results): a goal size and a budget common to
 the three scenarios, a distance per scenario; the start never inside the goal (distance at
 least the goal's half size + 3 cm, the layouts' jitter; in the tunnel the goal region wholly
@@ -77,15 +82,15 @@ class Recording(SimulatedRealWorld):
         return obs
 
 
-def run_trials(robot, m, number: int, trials: int, budget: int) -> list[dict]:
-    """Random trials from the paper set's start, without a goal: the target's track and how
-    each ended."""
+def run_trials(robot, m, number: int, trials: int, budget: int, first: int = 0) -> list[dict]:
+    """Random trials `first` ... `first + trials - 1` from the paper set's start, without a
+    goal: the target's track and how each ended."""
     sc = scenario(number, robot.profile.task_scale, "paper")
     sc = replace(sc, goal_center=(3.0, -3.0), budget=budget)  # never reached (and under TARGET_LOST away)
     cfg = PlannerConfig(asm="random", max_actions=budget).paper()
     transits = TransitPlanner(robot, m.failure)
     planner_trials, worlds, out = [], [], {}
-    for t in range(trials):
+    for t in range(first, first + trials):
         seed = trial_seed(CAL_BASE, number, t)
         planner = Planner(robot, m.failure, m.reach, m.edges, sc, None, cfg, transits)
         world = Recording(robot, seed)
@@ -186,28 +191,48 @@ def main() -> None:
     ap.add_argument("--failures", default="case1,case2")
     ap.add_argument("--out", required=True, help="JSON file: the tracks, the grid and the choice")
     ap.add_argument("--apply", action="store_true", help="write the choice into lmjx/scenarios.py")
-    ap.add_argument("--from-runs", help="score the trials of an earlier --out file again instead of running them")
+    ap.add_argument(
+        "--scenarios",
+        default=",".join(map(str, SCENARIOS)),
+        help="run only these scenarios (a part of one calibration, for --from-runs)",
+    )
+    ap.add_argument("--first", type=int, default=0,
+                    help="the first calibration trial's index (a part of one calibration: trials FIRST ... "
+                         "FIRST+TRIALS-1, merged with --from-runs)")  # fmt: skip
+    ap.add_argument("--from-runs", nargs="+", metavar="FILE",
+                    help="score the trials of earlier --out files again instead of running them (several: "
+                         "the parts of one calibration, merged by trial seed)")  # fmt: skip
     args = ap.parse_args()
     robot = load_robot("panda")
     runs, t0 = {}, time.perf_counter()
-    if args.from_runs:  # the trials of an earlier run, scored again (its number of trials)
-        earlier = json.loads(Path(args.from_runs).read_text())
-        args.trials = earlier["trials"]
-        for r in earlier["runs"]:
-            runs[(r["failure"], r["scenario"])] = r["trials"]
+    if args.from_runs:  # the trials of earlier runs (or of one run's parts), scored again
+        merged: dict[tuple[str, int], dict[int, dict]] = {}
+        for path in args.from_runs:
+            for r in json.loads(Path(path).read_text())["runs"]:
+                merged.setdefault((r["failure"], r["scenario"]), {}).update({tr["seed"]: tr for tr in r["trials"]})
+        runs = {k: [v[seed] for seed in sorted(v)] for k, v in sorted(merged.items())}
+        counts = {len(v) for (f, _), v in runs.items() if f == "case1"} or {len(v) for v in runs.values()}
+        if len(counts) != 1:
+            raise SystemExit(f"the runs hold different numbers of trials per scenario: {sorted(counts)}")
+        args.trials = counts.pop()
+        print(
+            f"{sum(map(len, runs.values()))} trials from {len(args.from_runs)} file(s): "
+            + ", ".join(f"{f} scenario {s}: {len(v)}" for (f, s), v in runs.items())
+        )
     for f in args.failures.split(","):
         if args.from_runs:
             break
         m = load_map(Path(args.maps) / f"{f}.h5", robot=robot)
-        for s in SCENARIOS:
-            runs[(f, s)] = run_trials(robot, m, s, args.trials, max(BUDGETS))
+        for s in (int(x) for x in args.scenarios.split(",")):
+            runs[(f, s)] = run_trials(robot, m, s, args.trials, max(BUDGETS), args.first)
             acts = [tr["actions"] for tr in runs[(f, s)]]
             print(f"{f} scenario {s}: {sum(acts)} actions in {len(acts)} trials "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
     rows = grid(runs)
     choice = choose(rows, args.trials) if "case1" in args.failures else None
     print(json.dumps(choice, indent=1))
-    out = {"trials": args.trials, "seed_base": CAL_BASE, "choice": choice, "grid": rows,
+    out = {"trials": args.trials, "first": 0 if args.from_runs else args.first, "seed_base": CAL_BASE,
+           "choice": choice, "grid": rows,
            "runs": [{"failure": f, "scenario": s, "trials": tr} for (f, s), tr in runs.items()],
            "seconds": round(time.perf_counter() - t0, 1)}  # fmt: skip
     Path(args.out).write_text(json.dumps(out) + "\n")

@@ -13,12 +13,20 @@
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it.  `lmjx evaluate` sizes its pools to the cores it is pinned to
-# (lmjx/cores.py).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one per
-# launch, so a later launch with other code leaves the running ones alone).  `wait` returns
+# (lmjx/cores.py; LMJX_CORES=N, passed on, caps them without pinning).  The code runs from
+# a copy made at launch (/tmp/lmjx_repo.<time>, one per launch, so a later launch with other
+# code leaves the running ones alone).  `wait` returns
 # after WAIT_S seconds or when every run has ended, prints each run's trials and state, and
 # packs every run's results.json and the tail of its log into $OUT/ev.tgz (merge with
 # benchmarks/eval_acceptance.py --merge).  The machine goes back 30 s after a call ends,
-# whatever runs on it: keep `wait` calls coming back to back.
+# whatever runs on it: keep `wait` calls coming back to back.  On a machine of several GPUs
+# the GPU runs take them in turn (CUDA_VISIBLE_DEVICES), across launches.
+#
+#     CAL="NAME:SCENARIOS:FIRST:TRIALS:CPUS ..." MAPS=... bash benchmarks/eval_background.sh calib
+#
+# starts parts of the paper set's calibration the same way (benchmarks/calibrate_tasks.py
+# --failures case1 --scenarios S --first F --trials N, writing /tmp/lmjx_gpu/NAME/calib.json);
+# merge them with `calibrate_tasks.py --from-runs /tmp/lmjx_gpu/*/calib.json`.
 set -uo pipefail
 WORK=/tmp/lmjx_gpu
 OUT=${OUT:-$PWD/out/gpu}
@@ -28,7 +36,28 @@ count() {  # trials in a results.json
   python3 -c "import json, sys; print(len(json.load(open(sys.argv[1]))))" "$1" 2>/dev/null || echo 0
 }
 
+gpus=$(nvidia-smi -L 2>/dev/null | grep -c ^GPU || true)
+
+start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
+  local name=$1 dir=$2 pin=$3 env=$4; shift 4
+  setsid nohup bash -c "cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
+    start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
+    echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc" > /dev/null 2>&1 < /dev/null &
+  echo "$name" >> "$WORK/runs"
+}
+
 case ${1:-} in
+  calib)
+    REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
+    for spec in ${CAL:?CAL names the parts}; do
+      IFS=: read -r name scen first n cpus <<< "$spec"
+      dir="$WORK/$name"; mkdir -p "$dir"
+      pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
+      args="benchmarks/calibrate_tasks.py --maps ${MAPS:-$WORK/maps} --failures case1 --scenarios $scen --first $first --trials $n --out $dir/calib.json"
+      echo "$name: $pin $args"
+      start "$name" "$dir" "$pin" "JAX_PLATFORMS=cpu" "$args"
+    done
+    date -u +"launched %H:%M:%S" ;;
   launch)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     for spec in ${RUNS:?RUNS names the runs}; do
@@ -41,12 +70,15 @@ case ${1:-} in
       [ "$asms" != - ] && args="$args --asms $asms"
       pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
       env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
-      [ "$sim" = gpu ] && env="XLA_PYTHON_CLIENT_PREALLOCATE=false"
-      echo "$name: $pin lmjx evaluate $args (resuming $(count "$dir/results.json") trials)"
-      setsid nohup bash -c "cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 $env; \
-        start=\$(date +%s); $pin python3 -m lmjx.cli evaluate $args > $dir.json 2> $dir.err; \
-        echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc" > /dev/null 2>&1 < /dev/null &
-      echo "$name" >> "$WORK/runs"
+      if [ "$sim" = gpu ]; then
+        env="XLA_PYTHON_CLIENT_PREALLOCATE=false"
+        if [ "$gpus" -gt 1 ]; then
+          k=$(cat "$WORK/gpu_next" 2>/dev/null || echo 0); echo $(( (k + 1) % gpus )) > "$WORK/gpu_next"
+          env="$env CUDA_VISIBLE_DEVICES=$k"
+        fi
+      fi
+      echo "$name: $env $pin lmjx evaluate $args (resuming $(count "$dir/results.json") trials)"
+      start "$name" "$dir" "$pin" "$env" "-m lmjx.cli evaluate $args"
     done
     date -u +"launched %H:%M:%S" ;;
   wait)
@@ -61,7 +93,7 @@ case ${1:-} in
     files=()
     for name in $(sort -u "$WORK/runs"); do
       state=$( [ -f "$WORK/$name.rc" ] && cat "$WORK/$name.rc" || echo running )
-      echo "$name: $(count "$WORK/$name/results.json") trials, $state; $(tail -c 160 "$WORK/$name.err" | tr '\r\n' '  ')"
+      echo "$name: $(count "$WORK/$name/results.json") trials$( [ -f "$WORK/$name/calib.json" ] && echo ", calib.json"), $state; $(tail -c 160 "$WORK/$name.err" | tr '\r\n' '  ')"
       tail -c 4000 "$WORK/$name.err" > "$WORK/$name/log.txt" 2>/dev/null
       cp "$WORK/$name.json" "$WORK/$name/summary.json" 2>/dev/null
       files+=("$name")
@@ -69,5 +101,5 @@ case ${1:-} in
     tar czf "$OUT/ev.tgz" -C "$WORK" "${files[@]}" && ls -l "$OUT/ev.tgz"
     uptime ;;
   *)
-    echo "usage: RUNS=... $0 launch | WAIT_S=... $0 wait" >&2; exit 2 ;;
+    echo "usage: RUNS=... $0 launch | CAL=... $0 calib | WAIT_S=... $0 wait" >&2; exit 2 ;;
 esac

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 from lmjx.cores import usable_cores
+from lmjx.errors import ConfigError
 
 
 def test_usable_cores_follow_the_affinity():
@@ -16,3 +19,19 @@ def test_usable_cores_follow_the_affinity():
     finally:
         os.sched_setaffinity(0, mine)
     assert usable_cores() == len(mine)
+
+
+def test_lmjx_cores_caps_the_pools_without_pinning(monkeypatch):
+    """LMJX_CORES=N: pools of at most N threads, affinity untouched; a bad value is refused."""
+    mine = len(os.sched_getaffinity(0))
+    monkeypatch.setenv("LMJX_CORES", "1")
+    assert usable_cores() == 1
+    assert len(os.sched_getaffinity(0)) == mine
+    monkeypatch.setenv("LMJX_CORES", str(mine + 5))
+    assert usable_cores() == mine
+    monkeypatch.setenv("LMJX_CORES", "")
+    assert usable_cores() == mine
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv("LMJX_CORES", bad)
+        with pytest.raises(ConfigError, match="LMJX_CORES"):
+            usable_cores()

@@ -192,6 +192,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
         (("evaluate", "--asms", "smart", "--out", tmp_path / "e"), "unknown ASM"),
     ):
         cli(*args).one_line_error(message)
+    assert not (tmp_path / "e").exists()  # a refused evaluation leaves no empty --out folder behind
     maps = tmp_path / "maps"
     maps.mkdir()
     (maps / "case2.h5").write_bytes(small_map.read_bytes())

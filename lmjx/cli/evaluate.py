@@ -67,8 +67,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     )
     config.validate()
     out = Path(args.out)
+    maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))  # before --out is made
     check_writable(out / "results.json", "results")
-    maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))
     simulates = bool(set(config.asms) - {"random"})
     sim_name, why = _resolve_sim(args) if simulates else ("cpu", "random does not simulate")
     config = replace(config, planner=_planner_config(args, "greedy", sim_name), backend=sim_name)
