@@ -156,6 +156,9 @@ def main() -> None:
         dest, *srcs = (Path(d) for d in args.merge)
         merged: dict = {}
         for d in srcs:
+            if not (d / "results.json").exists():  # a run stopped before its first trial ended
+                print(f"{d}: no trials")
+                continue
             for r in json.loads((d / "results.json").read_text()):
                 merged[(r["failure"], r["scenario"], r["asm"], r["seed"])] = r
         recs = sorted(
