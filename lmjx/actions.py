@@ -161,7 +161,9 @@ class TransitPlanner:
         from .batching import backend
 
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
-        self._scene_version = 0
+        self._scene_version = 0  # the scene's content, hashed (`set_scene`): the caches' keys hold it
+        self._scene_key: tuple | None = None
+        self._scene_of: Any = None  # the scenario object of the scene set (its id is in the key)
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
@@ -177,13 +179,34 @@ class TransitPlanner:
     def set_scene(self, sc, objects: np.ndarray, acting: bool = True) -> None:
         """The scene transits must keep clear of from now on: scenario `sc` with its movable
         objects observed at `objects` (n, 7), the target first.  `acting`: offer only edges
-        that sweep ACT_DEPTH into the target's box."""
+        that sweep ACT_DEPTH into the target's box.
+
+        Trials run together (`lmjx.lockstep`) share one TransitPlanner and each sets its own
+        scene before it asks for actions, again after every simulation it waited for (another
+        trial may have set its scene meanwhile).  Setting the scene that is already set
+        changes nothing; a scene's version is its content's, so what was kept for a trial's
+        scene (`_memo`) serves it again when it comes back to it."""
+        objects = np.asarray(objects, np.float64)
+        key = (id(sc), objects.tobytes(), bool(acting))
+        if self.scene is not None and key == self._scene_key and sc is self._scene_of:
+            return
+        self._scene_key, self._scene_of = key, sc
         self.scene = scene_boxes(sc, objects)
-        self._scene_version += 1
+        self._scene_version = hash(key)
         self.acting = acting
         self._from_park.clear()  # park -> start depends on where the objects are
         if self._box_kernel is not None:
             self._box_kernel.set_shared(*self.scene.padded())
+
+    def forget(self) -> None:
+        """Drop what was kept about the scenes set so far (the transits through the park pose,
+        the ways out of a jam, the roadmaps' free nodes and links): the next `set_scene`
+        starts afresh even for a scene already seen."""
+        for slot in ("_to_park", "_retreat", "_escape", "_trail", "_from_park"):
+            getattr(self, slot).clear()
+        for rm in self._roadmaps.values():
+            rm._scene = -1
+        self._scene_key = None
 
     def colliding(self, q: np.ndarray) -> bool:
         self.d.qpos[:] = q

@@ -372,6 +372,7 @@ class Planner:
             for e in order:
                 if rec.simulated == tries:
                     break
+                self.transits.set_scene(self.sc, obs.objects)  # again: trials run together share `transits`
                 acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
                 if not acts:
                     continue

@@ -263,17 +263,35 @@ def test_batched_transits_equal_c_mujoco_transits(robot, small_map):
 
 
 def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
-    """Trials run together (lmjx.lockstep, as lmjx evaluate runs them) decide as they do alone."""
+    """Trials run together (lmjx.lockstep, as lmjx evaluate runs them: one TransitPlanner per
+    map, each trial its own layout) decide as they do alone.  Lazy on the CPU builds its tries
+    one at a time, waiting for each simulation while the other trials set their scenes: each
+    try must still be checked against its own trial's scene."""
+    from lmjx.actions import TransitPlanner
     from lmjx.lockstep import run_lockstep
     from lmjx.trial import make_simulator
 
     m = load_map(plan_map)
     sim = make_simulator(robot, 1, "cpu", "hard")
-    cfgs = [PlannerConfig(asm=a, max_actions=1, greedy_candidates=6, lazy_tries=4) for a in ("random", "lazy",
-                                                                                               "greedy")]  # fmt: skip
-    alone = [run_trial(setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard")).summary() for c in cfgs]
+    runs = [("random", 5), ("lazy", 6), ("lazy", 8), ("greedy", 7)]
+    cfgs = [PlannerConfig(asm=a, max_actions=2, greedy_candidates=6, lazy_tries=4, lazy_cap=True) for a, _ in runs]
+
+    def record(res) -> dict:  # the trial and each of its actions, wall times left out
+        steps = [s | {"planning_s": 0} for s in res.action_records()]
+        return res.summary() | {"planning_s": 0, "steps": steps}
+
+    alone = [
+        record(run_trial(setup_trial(robot, m, 1, c, seed=seed, simulator=sim, tasks="hard")))
+        for c, (_, seed) in zip(cfgs, runs, strict=True)
+    ]
+    lazy_tries = [x["simulated"] for (a, _), r in zip(runs, alone, strict=True) if a == "lazy" for x in r["steps"]]
+    assert max(lazy_tries) > 1  # Lazy waited for a simulation between tries (what could go wrong)
     for window in (None, 2):  # all at once (a GPU's batches), or two in flight (the CPU's cores)
-        setups = [setup_trial(robot, m, 1, c, seed=5, simulator=sim, tasks="hard") for c in cfgs]
+        shared = TransitPlanner(robot, m.failure)
+        setups = [
+            setup_trial(robot, m, 1, c, seed=seed, simulator=sim, transits=shared, tasks="hard")
+            for c, (_, seed) in zip(cfgs, runs, strict=True)
+        ]
         together: dict[int, dict] = {}
         events: list[tuple[str, int]] = []
 
@@ -282,7 +300,7 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
             return (yield from trial)
 
         def done(i, res, together=together, events=events):
-            together[i] = res.summary()
+            together[i] = record(res)
             events.append(("end", i))
 
         run_lockstep(
@@ -292,11 +310,11 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
             threads=2,
             window=window,
         )
-        starts = [events.index(("start", i)) for i in range(3)]
-        first_end = min(events.index(("end", i)) for i in range(3))
+        starts = [events.index(("start", i)) for i in range(len(runs))]
+        first_end = min(events.index(("end", i)) for i in range(len(runs)))
         assert (starts[2] > first_end) == (window == 2)  # the third waits for a place
         for i, res in enumerate(alone):
-            assert together[i] | {"planning_s": 0} == res | {"planning_s": 0}
+            assert together[i] == res, f"trial {i} ({runs[i][0]}, seed {runs[i][1]}) decided otherwise together"
 
 
 class _BatchPreferringCpu(CpuSimulator):
@@ -717,7 +735,8 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
         return [None if np.array_equal(x, q0) else w for x, w in zip(a, segments(a, b), strict=True)]
 
     monkeypatch.setattr(tp, "segments", none_from_q0)
-    tp.set_scene(sc, objects, acting=False)  # a new scene: nothing cached from above
+    tp.forget()  # nothing kept from above (found before `segments` was replaced)
+    tp.set_scene(sc, objects, acting=False)
     assert not tp.actions(m.edges, edges, q0, len(edges))  # not jammed: nothing
     jam = tp.actions(m.edges, edges, q0, len(edges), q0[None])
     assert jam and all(a.route.startswith("escape+") for a in jam)
