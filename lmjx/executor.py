@@ -35,46 +35,61 @@ class Observation:
     # what the last executed action did (a real backend reports what it can measure):
     target_moved_m: float = float("nan")  # the target's displacement on the table [m]
     transit_contacts: tuple[str, ...] = ()  # movable objects the arm came into contact with before
-    # the edge began (not those it was already touching when the transit began and left:
-    # `LEAVE_S`)
+    # the edge began (not those it was already touching when the transit began, until it has
+    # been `LEAVE_CLEAR` clear of them)
     transit_hit_fixed: bool = False  # the arm came into contact with a fixed obstacle before the edge began
     transit_left: tuple[str, ...] = ()  # objects and obstacles the arm was touching as the transit began
 
 
 # A contact the arm is in when a transit begins (the last edge ended against the target) is
-# still being left while it comes and goes with gaps of at most this long: as a link slides
-# off a box the contact solver makes and breaks the contact for a few steps (measured: the
-# target's contact chattered for 0.2 s with gaps of 5-25 ms, trial case1:1:1008 of the paper
-# set).  Once absent this long it is left; touching the object again counts.
-LEAVE_S = 0.05  # [s]
+# still being left until the arm has been this far clear of that object: as a link slides off
+# a box the contact solver makes and breaks the contact many times at sub-millimetre distances
+# (measured: the target's contact chattered for 0.2 s with gaps of 5-25 ms, trial
+# case1:1:1008 of the paper set; on calibration seeds of the hard set, contacts returning
+# after 50-80 ms of absence with the arm never more than 0.32 mm away).  Once the arm has
+# been this far away, touching the object again counts.
+LEAVE_CLEAR = 0.001  # [m]
 
 
 class TransitContacts:
     """What a transit touches, from the contacts seen at each physics step: an object or
     obstacle the arm enters contact with, except those it was touching when the transit
-    began while it is still leaving them (`LEAVE_S`)."""
+    began until it has been LEAVE_CLEAR clear of them (`leaving`)."""
 
     def __init__(self, objects: set[str], fixed: set[str]) -> None:
         self.left = objects | fixed  # touching as the transit began
-        self._leaving = dict.fromkeys(self.left, 0.0)  # name -> when last in contact
+        self.leaving = set(self.left)  # ... and not yet LEAVE_CLEAR clear of
         self._prev = (set(objects), set(fixed))
         self.objects: set[str] = set()  # movable objects touched
         self.fixed: set[str] = set()  # fixed obstacles touched
 
-    def update(self, t: float, objects: set[str], fixed: set[str]) -> None:
-        """The contacts at time `t` [s] since the transit began."""
-        for name in [n for n in self._leaving if n in objects or n in fixed]:
-            if t - self._leaving[name] <= LEAVE_S + 1e-9:
-                self._leaving[name] = t
-            else:
-                del self._leaving[name]
-        self.objects |= objects - self._prev[0] - self._leaving.keys()
-        self.fixed |= fixed - self._prev[1] - self._leaving.keys()
+    def update(self, objects: set[str], fixed: set[str], clear: set[str] | frozenset = frozenset()) -> None:
+        """The contacts at one physics step; `clear`: those of `leaving` the arm is now at
+        least LEAVE_CLEAR away from."""
+        self.leaving -= clear
+        self.objects |= objects - self._prev[0] - self.leaving
+        self.fixed |= fixed - self._prev[1] - self.leaving
         self._prev = (set(objects), set(fixed))
 
 
 class Executor(Protocol):
     def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation: ...
+
+    def _clear_of(self, names: set[str]) -> set[str]:
+        """Those of `names` (objects, obstacles) the arm is at least LEAVE_CLEAR away from now."""
+        if not names:
+            return set()
+        assert self.scene is not None and self.data is not None
+        m, d = self.scene.model, self.data
+        return {
+            n
+            for n in names
+            if all(
+                mujoco.mj_geomDistance(m, d, int(a), b, 2 * LEAVE_CLEAR, None) >= LEAVE_CLEAR
+                for a in self._arm_geoms
+                for b in self._geoms_of[n]
+            )
+        }
 
     def execute(self, action: Action) -> Observation: ...
 
@@ -137,6 +152,11 @@ class SimulatedRealWorld:
         self._robot_geom = np.array([m.body(int(m.geom_bodyid[g])).name in robot_bodies for g in range(m.ngeom)])
         self._object_of = {int(m.geom(f"{b.name}_geom").id): b.name for b in layout.scenario.movable}
         self._fixed_of = {int(m.geom(b.name).id): b.name for b in layout.scenario.fixed}
+        self._geoms_of: dict[str, list[int]] = {}
+        for g, name in {**self._object_of, **self._fixed_of}.items():
+            self._geoms_of.setdefault(name, []).append(g)
+        # the arm's geoms that take part in contacts (those `_touching` can see)
+        self._arm_geoms = np.flatnonzero(self._robot_geom & ((m.geom_contype != 0) | (m.geom_conaffinity != 0)))
         return self.observe()
 
     def _touching(self) -> tuple[set[str], set[str]]:
@@ -153,6 +173,22 @@ class SimulatedRealWorld:
                         fixed.add(self._fixed_of[b])
         return objects, fixed
 
+    def _clear_of(self, names: set[str]) -> set[str]:
+        """Those of `names` (objects, obstacles) the arm is at least LEAVE_CLEAR away from now."""
+        if not names:
+            return set()
+        assert self.scene is not None and self.data is not None
+        m, d = self.scene.model, self.data
+        return {
+            n
+            for n in names
+            if all(
+                mujoco.mj_geomDistance(m, d, int(a), b, 2 * LEAVE_CLEAR, None) >= LEAVE_CLEAR
+                for a in self._arm_geoms
+                for b in self._geoms_of[n]
+            )
+        }
+
     def execute(self, action: Action) -> Observation:
         assert self.scene is not None and self.data is not None, "reset first"
         m, d = self.scene.model, self.data
@@ -160,13 +196,13 @@ class SimulatedRealWorld:
         transit = action.transit_steps * round(CONTROL_DT / m.opt.timestep)  # physics steps before the edge
         # a transit "touches" what it comes into contact with: contacts the arm is already in
         # when it begins (the last edge ended against an object or the table) and leaves are
-        # not counted; one it enters again once it has left it (absent LEAVE_S) is
+        # not counted; one it enters again once it has been LEAVE_CLEAR clear of it is
         ledger = TransitContacts(*self._touching())
         for i, u in enumerate(controls(action, m.opt.timestep, self.settle)):
             d.ctrl[:] = u
             mujoco.mj_step(m, d)
             if i < transit:
-                ledger.update((i + 1) * m.opt.timestep, *(self._touching() if d.ncon else (set(), set())))
+                ledger.update(*(self._touching() if d.ncon else (set(), set())), self._clear_of(ledger.leaving))
             if self.on_step is not None:
                 self.on_step(m, d)
         touched, hit_fixed, left = ledger.objects, ledger.fixed, ledger.left

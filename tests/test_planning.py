@@ -14,7 +14,7 @@ import pytest
 from conftest import cli
 
 from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
-from lmjx.executor import LEAVE_S, SimulatedRealWorld, TransitContacts, real_physics
+from lmjx.executor import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
 from lmjx.failure import parse_failure
 from lmjx.mapfile import load_map
 from lmjx.planner import ENDS, PlannerConfig, score
@@ -43,24 +43,55 @@ def test_layouts_are_seeded_and_apart(robot, n):
 
 
 def test_a_transit_counts_what_it_touches_not_the_chatter_of_what_it_leaves():
-    dt = 0.005
     # the arm ends a push against the target; as it slides off, the contact comes and goes
+    # while the arm is still within LEAVE_CLEAR of it: the same contact, being left
     c = TransitContacts({"target"}, set())
-    timeline = [{"target"}, set(), set(), {"target"}, set(), {"target"}] + [set()] * 5 + [{"obstacle1"}]
-    for i, objects in enumerate(timeline):
-        c.update((i + 1) * dt, objects, set())
-    assert c.left == {"target"} and c.objects == {"obstacle1"} and not c.fixed
-    # once the target has been out of contact longer than LEAVE_S, touching it again counts
+    timeline = [{"target"}, set(), set(), {"target"}, set(), {"target"}] + [set()] * 30 + [{"target"}, {"obstacle1"}]
+    for objects in timeline:
+        c.update(objects, set())
+    assert c.left == {"target"} and c.objects == {"obstacle1"} and not c.fixed and c.leaving == {"target"}
+    # once the arm has been LEAVE_CLEAR clear of the target, touching it again counts
     c = TransitContacts({"target"}, set())
-    gap = int(LEAVE_S / dt) + 2
-    for i, objects in enumerate([{"target"}] + [set()] * gap + [{"target"}]):
-        c.update((i + 1) * dt, objects, set())
+    c.update({"target"}, set())
+    c.update(set(), set(), {"target"})
+    assert not c.leaving and not c.objects
+    c.update(set(), set())
+    c.update({"target"}, set())
     assert c.objects == {"target"}
     # a fixed obstacle met during the transit is a hit; nothing touched before is a contact
     c = TransitContacts(set(), set())
-    c.update(dt, set(), {"wall_near"})
-    c.update(2 * dt, {"target"}, {"wall_near"})
+    c.update(set(), {"wall_near"})
+    c.update({"target"}, {"wall_near"})
     assert c.fixed == {"wall_near"} and c.objects == {"target"} and c.left == set()
+
+
+def test_the_real_world_tells_when_the_arm_is_clear_of_an_object(robot):
+    """`SimulatedRealWorld._clear_of` against C MuJoCo's distances: clear at LEAVE_CLEAR and
+    beyond, not nearer (the arm's contact geoms against the object's box)."""
+    sc = scenario(1, tasks="hard")
+    lay = sample_layout(sc, 1)
+    w = SimulatedRealWorld(robot, 1)
+    w.reset(lay, park_pose(robot, parse_failure("case2", robot)))
+    m, d = w.scene.model, w.data
+    box = w._geoms_of["target"][0]
+
+    def gap() -> float:
+        return min(mujoco.mj_geomDistance(m, d, int(a), box, 1.0, None) for a in w._arm_geoms)
+
+    assert gap() > LEAVE_CLEAR and w._clear_of({"target"}) == {"target"}
+    jnt = m.body("target").jntadr[0]
+    adr = m.jnt_qposadr[jnt]
+    start, hand = d.qpos[adr : adr + 3].copy(), d.xpos[m.body("hand").id].copy()
+    near = 0
+    for shift in np.linspace(0.0, 1.0, 4001):  # slide the target toward the hand (0.3 mm steps)
+        d.qpos[adr : adr + 3] = (1 - shift) * start + shift * hand
+        mujoco.mj_forward(m, d)
+        g = gap()
+        assert (w._clear_of({"target"}) == {"target"}) == (g >= LEAVE_CLEAR), g
+        near += 0 <= g < LEAVE_CLEAR
+        if g < 0:
+            break
+    assert g < 0 and near >= 2  # it passed through the band where it is not yet clear
 
 
 def test_real_world_differs_from_the_planners_within_documented_ranges(robot):
