@@ -75,22 +75,6 @@ class TransitContacts:
 class Executor(Protocol):
     def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation: ...
 
-    def _clear_of(self, names: set[str]) -> set[str]:
-        """Those of `names` (objects, obstacles) the arm is at least LEAVE_CLEAR away from now."""
-        if not names:
-            return set()
-        assert self.scene is not None and self.data is not None
-        m, d = self.scene.model, self.data
-        return {
-            n
-            for n in names
-            if all(
-                mujoco.mj_geomDistance(m, d, int(a), b, 2 * LEAVE_CLEAR, None) >= LEAVE_CLEAR
-                for a in self._arm_geoms
-                for b in self._geoms_of[n]
-            )
-        }
-
     def execute(self, action: Action) -> Observation: ...
 
     def truth(self) -> np.ndarray:
