@@ -1,0 +1,64 @@
+"""Carry runs' finished trials to the device, so that `eval_background.sh launch` resumes them.
+
+For each run of a RUNS list (the same "NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS" specs
+`benchmarks/eval_background.sh launch` takes), the records of the given results.json files
+that belong to it (its task set, failures, scenarios and ASMs; Random's records, which
+simulate nothing, for any SIM; the others only for their own simulator) are written to
+.evprev/NAME.json, which `launch` copies into the run's folder before it starts: `lmjx
+evaluate` then runs only the trials not yet there.  Runs with no finished trial get no file.
+
+    python benchmarks/evprev.py docs/eval_hard_gpu_1m/results.json --runs "hg22:gpu:hard:2:case2:greedy:- ..."
+
+The maps must be the same as those the trials ran on (`benchmarks/map_digest.py`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lmjx.fileio import write_text_atomic
+
+ASMS = ("random", "lazy", "greedy")
+
+
+def belongs(rec: dict, sim: str, tasks: str, scen: str, fail: str, asms: str) -> bool:
+    """Whether `rec` is a trial of the run with these fields ('-': the default, every one)."""
+    if rec.get("tasks") != tasks:
+        return False
+    if scen != "-" and rec["scenario"] not in {int(s) for s in scen.split(",")}:
+        return False
+    if fail != "-" and rec["failure"] not in fail.split(","):
+        return False
+    if rec["asm"] not in (ASMS if asms == "-" else asms.split(",")):
+        return False
+    return rec["asm"] == "random" or rec.get("sim") == sim
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("results", nargs="+", type=Path, help="results.json files (merged runs)")
+    ap.add_argument("--runs", required=True, help="the RUNS list of eval_background.sh launch")
+    ap.add_argument("--out", type=Path, default=Path(".evprev"), help="folder for NAME.json (default .evprev)")
+    args = ap.parse_args()
+    records = {}
+    for p in args.results:
+        for r in json.loads(p.read_text()):
+            records[(r.get("tasks"), r.get("sim") if r["asm"] != "random" else "none", r["failure"], r["scenario"],
+                     r["asm"], r["seed"])] = r  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    for spec in args.runs.split():
+        fields = spec.split(":")
+        if len(fields) != 7:
+            sys.exit(f"evprev: '{spec}' is not NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS")
+        name, sim, tasks, scen, fail, asms, _ = fields
+        mine = [r for r in records.values() if belongs(r, sim, tasks, scen, fail, asms)]
+        if mine:
+            write_text_atomic(args.out / f"{name}.json", json.dumps(mine, indent=1) + "\n")
+        print(f"{name}: {len(mine)} trials carried")
+
+
+if __name__ == "__main__":
+    main()
