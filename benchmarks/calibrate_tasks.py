@@ -215,6 +215,10 @@ def main() -> None:
         if len(counts) != 1:
             raise SystemExit(f"the runs hold different numbers of trials per scenario: {sorted(counts)}")
         args.trials = counts.pop()
+        for (f, s), trials in runs.items():  # the parts must make up trials 0 ... N-1, no gap
+            want = [trial_seed(CAL_BASE, s, t) for t in range(args.trials)]
+            if [tr["seed"] for tr in trials] != want:
+                raise SystemExit(f"{f} scenario {s}: the parts hold trial seeds other than {want[0]} ... {want[-1]}")
         print(
             f"{sum(map(len, runs.values()))} trials from {len(args.from_runs)} file(s): "
             + ", ".join(f"{f} scenario {s}: {len(v)}" for (f, s), v in runs.items())

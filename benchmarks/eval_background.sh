@@ -40,6 +40,7 @@ gpus=$(nvidia-smi -L 2>/dev/null | grep -c ^GPU || true)
 
 start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
   local name=$1 dir=$2 pin=$3 env=$4; shift 4
+  rm -f "$dir.rc"  # a run started again (to resume) is running until it writes it anew
   setsid nohup bash -c "cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
     start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
     echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc" > /dev/null 2>&1 < /dev/null &
@@ -73,7 +74,7 @@ case ${1:-} in
       if [ "$sim" = gpu ]; then
         env="XLA_PYTHON_CLIENT_PREALLOCATE=false"
         if [ "$gpus" -gt 1 ]; then
-          k=$(cat "$WORK/gpu_next" 2>/dev/null || echo 0); echo $(( (k + 1) % gpus )) > "$WORK/gpu_next"
+          k=$(( $(cat "$WORK/gpu_next" 2>/dev/null || echo 0) % gpus )); echo $(( (k + 1) % gpus )) > "$WORK/gpu_next"
           env="$env CUDA_VISIBLE_DEVICES=$k"
         fi
       fi

@@ -26,7 +26,7 @@ ASMS = ("random", "lazy", "greedy")
 
 def belongs(rec: dict, sim: str, tasks: str, scen: str, fail: str, asms: str) -> bool:
     """Whether `rec` is a trial of the run with these fields ('-': the default, every one)."""
-    if rec.get("tasks") != tasks:
+    if rec.get("tasks", "hard") != tasks:  # records from before task sets were named: the hard set
         return False
     if scen != "-" and rec["scenario"] not in {int(s) for s in scen.split(",")}:
         return False
@@ -46,8 +46,8 @@ def main() -> None:
     records = {}
     for p in args.results:
         for r in json.loads(p.read_text()):
-            records[(r.get("tasks"), r.get("sim") if r["asm"] != "random" else "none", r["failure"], r["scenario"],
-                     r["asm"], r["seed"])] = r  # fmt: skip
+            sim = r.get("sim") if r["asm"] != "random" else "none"
+            records[(r.get("tasks", "hard"), sim, r["failure"], r["scenario"], r["asm"], r["seed"])] = r
     args.out.mkdir(parents=True, exist_ok=True)
     for spec in args.runs.split():
         fields = spec.split(":")

@@ -161,9 +161,7 @@ class TransitPlanner:
         from .batching import backend
 
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
-        self._scene_version = 0  # the scene's content, hashed (`set_scene`): the caches' keys hold it
-        self._scene_key: tuple | None = None
-        self._scene_of: Any = None  # the scenario object of the scene set (its id is in the key)
+        self._scene_version: Any = 0  # the scene set, by content (`set_scene`): the caches' keys hold it
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
@@ -187,12 +185,11 @@ class TransitPlanner:
         changes nothing; a scene's version is its content's, so what was kept for a trial's
         scene (`_memo`) serves it again when it comes back to it."""
         objects = np.asarray(objects, np.float64)
-        key = (id(sc), objects.tobytes(), bool(acting))
-        if self.scene is not None and key == self._scene_key and sc is self._scene_of:
+        key = (sc, objects.shape, objects.tobytes(), bool(acting))  # the scene's content (Scenario is frozen)
+        if self.scene is not None and key == self._scene_version:
             return
-        self._scene_key, self._scene_of = key, sc
         self.scene = scene_boxes(sc, objects)
-        self._scene_version = hash(key)
+        self._scene_version = key
         self.acting = acting
         self._from_park.clear()  # park -> start depends on where the objects are
         if self._box_kernel is not None:
@@ -206,7 +203,7 @@ class TransitPlanner:
             getattr(self, slot).clear()
         for rm in self._roadmaps.values():
             rm._scene = -1
-        self._scene_key = None
+        self._scene_version = 0
 
     def colliding(self, q: np.ndarray) -> bool:
         self.d.qpos[:] = q
