@@ -12,10 +12,10 @@
 # FAILURES --asms ASMS` (commas inside a field; '-' leaves it at its default) pinned to the
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
-# run resumes it (benchmarks/evprev.py writes those from merged results).  `lmjx evaluate` sizes its pools to the cores it is pinned to
-# (lmjx/cores.py; LMJX_CORES=N, passed on, caps them without pinning).  The code runs from
-# a copy made at launch (/tmp/lmjx_repo.<time>, one per launch, so a later launch with other
-# code leaves the running ones alone).  `wait` returns
+# run resumes it (benchmarks/evprev.py writes those from merged results).  `lmjx evaluate`
+# sizes its pools to the cores it is pinned to (lmjx/cores.py; LMJX_CORES=N, passed on, caps
+# them without pinning).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one
+# per launch, so a later launch with other code leaves the running ones alone).  `wait` returns
 # after WAIT_S seconds or when every run has ended, prints each run's trials and state, and
 # packs every run's results.json and the tail of its log into $OUT/ev.tgz (merge with
 # benchmarks/eval_acceptance.py --merge).  The machine goes back 30 s after a call ends,

@@ -20,8 +20,7 @@ import sys
 from pathlib import Path
 
 from lmjx.fileio import write_text_atomic
-
-ASMS = ("random", "lazy", "greedy")
+from lmjx.planner import ASMS
 
 
 def belongs(rec: dict, sim: str, tasks: str, scen: str, fail: str, asms: str) -> bool:

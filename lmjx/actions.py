@@ -162,6 +162,7 @@ class TransitPlanner:
 
         self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
         self._scene_version: Any = 0  # the scene set, by content (`set_scene`): the caches' keys hold it
+        self._forgotten = 0  # how often `forget` was called (part of every scene version since)
         self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
@@ -185,7 +186,8 @@ class TransitPlanner:
         changes nothing; a scene's version is its content's, so what was kept for a trial's
         scene (`_memo`) serves it again when it comes back to it."""
         objects = np.asarray(objects, np.float64)
-        key = (sc, objects.shape, objects.tobytes(), bool(acting))  # the scene's content (Scenario is frozen)
+        # the scene's content (Scenario is frozen), in this planner's memory since its last `forget`
+        key = (self._forgotten, sc, objects.shape, objects.tobytes(), bool(acting))
         if self.scene is not None and key == self._scene_version:
             return
         self.scene = scene_boxes(sc, objects)
@@ -198,11 +200,11 @@ class TransitPlanner:
     def forget(self) -> None:
         """Drop what was kept about the scenes set so far (the transits through the park pose,
         the ways out of a jam, the roadmaps' free nodes and links): the next `set_scene`
-        starts afresh even for a scene already seen."""
-        for slot in ("_to_park", "_retreat", "_escape", "_trail", "_from_park"):
+        starts afresh even for a scene already seen: every scene version from now on differs
+        from those before, so nothing cached under one (`_memo`, the roadmaps) is found again."""
+        for slot in ("_to_park", "_retreat", "_escape", "_trail"):
             getattr(self, slot).clear()
-        for rm in self._roadmaps.values():
-            rm._scene = -1
+        self._forgotten += 1
         self._scene_version = 0
 
     def colliding(self, q: np.ndarray) -> bool:
