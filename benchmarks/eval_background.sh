@@ -5,11 +5,12 @@
 # Run from the repository root on the device machine, after the wheels and the maps are in
 # place (benchmarks/gpu_session.sh's set-up, benchmarks/map_parts.sh):
 #
-#     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS ..." bash benchmarks/eval_background.sh launch
+#     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N] ..." bash benchmarks/eval_background.sh launch
 #     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
 #
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
-# FAILURES --asms ASMS` (commas inside a field; '-' leaves it at its default) pinned to the
+# FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
+# cell split in N runs, one per K, each with the cell's finished trials carried) pinned to the
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it (benchmarks/evprev.py writes those from merged results).  `lmjx evaluate`
@@ -62,13 +63,14 @@ case ${1:-} in
   launch)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     for spec in ${RUNS:?RUNS names the runs}; do
-      IFS=: read -r name sim tasks scen fail asms cpus <<< "$spec"
+      IFS=: read -r name sim tasks scen fail asms cpus part <<< "$spec"
       dir="$WORK/$name"; mkdir -p "$dir"
       [ -f ".evprev/$name.json" ] && [ ! -f "$dir/results.json" ] && cp ".evprev/$name.json" "$dir/results.json"
       args="--sim $sim --tasks $tasks --maps $WORK/maps --out $dir --json"
       [ "$scen" != - ] && args="$args --scenarios $scen"
       [ "$fail" != - ] && args="$args --failures $fail"
       [ "$asms" != - ] && args="$args --asms $asms"
+      [ -n "$part" ] && args="$args --part $part"
       pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
       env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
       if [ "$sim" = gpu ]; then

@@ -51,6 +51,7 @@ class EvalConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     backend: str = "cpu"
     tasks: str = "paper"  # the task set (lmjx.scenarios.TASK_SETS)
+    part: tuple[int, int] = (1, 1)  # (K, N): only trials t with t % N == K - 1 (a run split in N parts)
 
     def validate(self) -> None:
         for a in self.asms:
@@ -63,6 +64,9 @@ class EvalConfig:
             raise ConfigError(f"unknown task set '{self.tasks}'; use paper or hard")
         if self.trials < 1:
             raise ConfigError("--trials must be at least 1")
+        k, n = self.part
+        if not 1 <= k <= n:
+            raise ConfigError(f"--part {k}/{n}: K/N needs 1 <= K <= N (e.g. 2/4: the second of four parts)")
 
 
 def trial_seed(base: int, scenario: int, trial: int) -> int:
@@ -123,6 +127,7 @@ def evaluate(
         for s in config.scenarios
         for a in config.asms
         for t in range(config.trials)
+        if t % config.part[1] == config.part[0] - 1
     ]
     rank = {k: i for i, k in enumerate(todo)}
     todo = [k for k in todo if k not in done]

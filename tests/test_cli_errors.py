@@ -137,6 +137,18 @@ def test_plan_says_robot_time_is_simulated_and_evaluate_says_it_resumed(small_ma
             "--max-actions", "1", "--maps", small_map.parent, "--out", tmp_path)  # fmt: skip
     assert "resuming" not in cli(*args).ok().stderr
     assert f"resuming: 1 of 1 trials already in {tmp_path / 'results.json'}" in cli(*args).ok().stderr
+    # a run split in parts: part 2 of 2 runs trial 1 alone, part 1 then adds trial 0, as the
+    # whole run made it (the same seed, the same actions)
+    parts = [*args[:-1], tmp_path / "parts", "--trials", "2"]
+    cli(*parts, "--part", "2/2").ok()
+    assert [r["seed"] for r in json.loads((tmp_path / "parts" / "results.json").read_text())] == [1001]
+    cli(*parts, "--part", "1/2").ok()
+    split = json.loads((tmp_path / "parts" / "results.json").read_text())
+    whole = json.loads((tmp_path / "results.json").read_text())
+    assert [r["seed"] for r in split] == [1000, 1001]
+    assert [s["edge"] for s in split[0]["steps"]] == [s["edge"] for s in whole[0]["steps"]]
+    for bad in ("3/2", "0/2", "half"):
+        cli(*parts, "--part", bad).one_line_error("--part")
 
 
 def test_evaluation_plots_when_nothing_succeeds(tmp_path):

@@ -28,6 +28,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
     p.add_argument("--maps", help="folder of <failure>.h5 map files (default maps; another robot's: maps/<robot>)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
+    p.add_argument(
+        "--part",
+        metavar="K/N",
+        default="1/1",
+        help="run only part K of N of every cell (its trials K, K+N, K+2N, ...; default 1/1: all): one "
+        "evaluation split across processes or machines, each with its own --out; merge their results.json "
+        "afterwards (benchmarks/eval_acceptance.py --merge DEST DIR...)",
+    )
     _add_planner_options(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
@@ -43,6 +51,16 @@ def _split(text: str, cast: Callable = str) -> tuple:
         return tuple(cast(x.strip()) for x in text.split(",") if x.strip())
     except ValueError:
         raise ConfigError(f"cannot read the list '{text}'") from None
+
+
+def _part(text: str) -> tuple[int, int]:
+    from ..errors import ConfigError
+
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise ConfigError(f"--part '{text}': give K/N, e.g. 2/4 (the second of four parts)") from None
+    return k, n
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -64,6 +82,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         trials=args.trials,
         seed=args.seed,
         tasks=args.tasks,
+        part=_part(args.part),
     )
     config.validate()
     out = Path(args.out)
