@@ -5,12 +5,13 @@
 # Run from the repository root on the device machine, after the wheels and the maps are in
 # place (benchmarks/gpu_session.sh's set-up, benchmarks/map_parts.sh):
 #
-#     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N] ..." bash benchmarks/eval_background.sh launch
+#     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N[:NICE]] ..." bash benchmarks/eval_background.sh launch
 #     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
 #
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
-# cell split in N runs, one per K, each with the cell's finished trials carried) pinned to the
+# cell split in N runs, one per K, each with the cell's finished trials carried; NICE: the
+# run's scheduling priority, e.g. 19 for runs that should only take idle cores) pinned to the
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it (benchmarks/evprev.py writes those from merged results).  `lmjx evaluate`
@@ -28,6 +29,12 @@
 # starts parts of the paper set's calibration the same way (benchmarks/calibrate_tasks.py
 # --failures case1 --scenarios S --first F --trials N, writing /tmp/lmjx_gpu/NAME/calib.json);
 # merge them with `calibrate_tasks.py --from-runs /tmp/lmjx_gpu/*/calib.json`.
+#
+#     RECOUNT="NAME:K/N ..." FILES="docs/.../results.json ..." [EXECUTOR=file.py] bash benchmarks/eval_background.sh recount
+#
+# replays those trials in parts (benchmarks/recount_contacts.py --part K/N, writing
+# /tmp/lmjx_gpu/NAME/recount.json; merge with its --merge), with the executor of this checkout
+# or EXECUTOR (another counting rule's lmjx/executor.py, e.g. the one the trials ran with).
 set -uo pipefail
 WORK=/tmp/lmjx_gpu
 OUT=${OUT:-$PWD/out/gpu}
@@ -38,6 +45,13 @@ count() {  # trials in a results.json
 }
 
 gpus=$(nvidia-smi -L 2>/dev/null | grep -c ^GPU || true)
+
+next_gpu() {  # the GPUs in turn, across launches: "CUDA_VISIBLE_DEVICES=k" ("" with one GPU)
+  [ "$gpus" -gt 1 ] || return 0
+  local k=$(( $(cat "$WORK/gpu_next" 2>/dev/null || echo 0) % gpus ))
+  echo $(( (k + 1) % gpus )) > "$WORK/gpu_next"
+  echo "CUDA_VISIBLE_DEVICES=$k"
+}
 
 start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
   local name=$1 dir=$2 pin=$3 env=$4; shift 4
@@ -63,7 +77,7 @@ case ${1:-} in
   launch)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     for spec in ${RUNS:?RUNS names the runs}; do
-      IFS=: read -r name sim tasks scen fail asms cpus part <<< "$spec"
+      IFS=: read -r name sim tasks scen fail asms cpus part nice <<< "$spec"
       dir="$WORK/$name"; mkdir -p "$dir"
       [ -f ".evprev/$name.json" ] && [ ! -f "$dir/results.json" ] && cp ".evprev/$name.json" "$dir/results.json"
       args="--sim $sim --tasks $tasks --maps $WORK/maps --out $dir --json"
@@ -74,14 +88,23 @@ case ${1:-} in
       pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
       env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
       if [ "$sim" = gpu ]; then
-        env="XLA_PYTHON_CLIENT_PREALLOCATE=false"
-        if [ "$gpus" -gt 1 ]; then
-          k=$(( $(cat "$WORK/gpu_next" 2>/dev/null || echo 0) % gpus )); echo $(( (k + 1) % gpus )) > "$WORK/gpu_next"
-          env="$env CUDA_VISIBLE_DEVICES=$k"
-        fi
+        env="XLA_PYTHON_CLIENT_PREALLOCATE=false $(next_gpu)"
       fi
+      [ -n "$nice" ] && pin="nice -n $nice $pin"
       echo "$name: $env $pin lmjx evaluate $args (resuming $(count "$dir/results.json") trials)"
       start "$name" "$dir" "$pin" "$env" "-m lmjx.cli evaluate $args"
+    done
+    date -u +"launched %H:%M:%S" ;;
+  recount)
+    REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
+    [ -n "${EXECUTOR:-}" ] && cp "$EXECUTOR" "$REPO/lmjx/executor.py"
+    files=""; for f in ${FILES:?FILES names the results.json files}; do files="$files $(realpath "$f")"; done
+    for spec in ${RECOUNT:?RECOUNT names the parts}; do
+      IFS=: read -r name part <<< "$spec"
+      dir="$WORK/$name"; mkdir -p "$dir"
+      args="benchmarks/recount_contacts.py$files --maps $WORK/maps --part $part --out $dir/recount.json"
+      echo "$name: ${EXECUTOR:-the executor of this checkout}: $args"
+      start "$name" "$dir" "" "XLA_PYTHON_CLIENT_PREALLOCATE=false $(next_gpu)" "$args"
     done
     date -u +"launched %H:%M:%S" ;;
   wait)
@@ -104,5 +127,6 @@ case ${1:-} in
     tar czf "$OUT/ev.tgz" -C "$WORK" "${files[@]}" && ls -l "$OUT/ev.tgz"
     uptime ;;
   *)
-    echo "usage: RUNS=... $0 launch | CAL=... $0 calib | WAIT_S=... $0 wait" >&2; exit 2 ;;
+    echo "usage: RUNS=... $0 launch | CAL=... $0 calib | RECOUNT=... FILES=... $0 recount | WAIT_S=... $0 wait" >&2
+    exit 2 ;;
 esac
