@@ -1,6 +1,6 @@
 """Carry runs' finished trials to the device, so that `eval_background.sh launch` resumes them.
 
-For each run of a RUNS list (the same "NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N]" specs
+For each run of a RUNS list (the same "NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N[:NICE]]" specs
 `benchmarks/eval_background.sh launch` takes), the records of the given results.json files
 that belong to it (its task set, failures, scenarios and ASMs; Random's records, which
 simulate nothing, for any SIM; the others only for their own simulator) are written to
@@ -50,8 +50,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     for spec in args.runs.split():
         fields = spec.split(":")
-        if len(fields) not in (7, 8):
-            sys.exit(f"evprev: '{spec}' is not NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N]")
+        if len(fields) not in (7, 8, 9):
+            sys.exit(f"evprev: '{spec}' is not NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N[:NICE]]")
         name, sim, tasks, scen, fail, asms = fields[:6]  # a part (K/N) gets the whole cell's trials
         mine = [r for r in records.values() if belongs(r, sim, tasks, scen, fail, asms)]
         if mine:
