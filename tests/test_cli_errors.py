@@ -137,18 +137,36 @@ def test_plan_says_robot_time_is_simulated_and_evaluate_says_it_resumed(small_ma
             "--max-actions", "1", "--maps", small_map.parent, "--out", tmp_path)  # fmt: skip
     assert "resuming" not in cli(*args).ok().stderr
     assert f"resuming: 1 of 1 trials already in {tmp_path / 'results.json'}" in cli(*args).ok().stderr
-    # a run split in parts: part 2 of 2 runs trial 1 alone, part 1 then adds trial 0, as the
-    # whole run made it (the same seed, the same actions)
-    parts = [*args[:-1], tmp_path / "parts", "--trials", "2"]
-    cli(*parts, "--part", "2/2").ok()
+
+
+def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
+    """A run split in parts (--part K/N) makes the whole run's trials; replaying their recorded
+    edges (benchmarks/recount_contacts.py) executes the same actions again, and a record that
+    differs from what its edges do is caught."""
+    args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random", "--trials", "2",
+            "--max-actions", "2", "--maps", plan_map.parent, "--out")  # fmt: skip
+    cli(*args, tmp_path / "whole").ok()
+    cli(*args, tmp_path / "parts", "--part", "2/2").ok()
     assert [r["seed"] for r in json.loads((tmp_path / "parts" / "results.json").read_text())] == [1001]
-    cli(*parts, "--part", "1/2").ok()
+    cli(*args, tmp_path / "parts", "--part", "1/2").ok()
     split = json.loads((tmp_path / "parts" / "results.json").read_text())
-    whole = json.loads((tmp_path / "results.json").read_text())
-    assert [r["seed"] for r in split] == [1000, 1001]
-    assert [s["edge"] for s in split[0]["steps"]] == [s["edge"] for s in whole[0]["steps"]]
-    for bad in ("3/2", "0/2", "half"):
-        cli(*parts, "--part", bad).one_line_error("--part")
+    whole = json.loads((tmp_path / "whole" / "results.json").read_text())
+    edges = [[s["edge"] for s in r["steps"]] for r in whole]
+    assert [r["seed"] for r in split] == [1000, 1001] and all(edges), edges  # every trial acted
+    assert [[s["edge"] for s in r["steps"]] for r in split] == edges
+    for bad in ("3/2", "half"):
+        cli(*args, tmp_path / "bad", "--part", bad).one_line_error("--part")
+    sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+    try:
+        import recount_contacts
+    finally:
+        sys.path.pop(0)
+    split[1]["steps"][0]["target_moved_m"] += 0.01
+    replayed = recount_contacts.replay(split, plan_map.parent, lambda line: None)
+    assert [[st["same"] for st in t["steps"]] for t in replayed] == [[True] * len(e) for e in edges[:1]] + [
+        [False] + [True] * (len(edges[1]) - 1)
+    ]
+    assert [st["transit_contacts"] for st in replayed[0]["steps"]] == [s["transit_contacts"] for s in split[0]["steps"]]
 
 
 def test_evaluation_plots_when_nothing_succeeds(tmp_path):
