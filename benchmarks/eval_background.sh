@@ -30,7 +30,7 @@
 # --failures case1 --scenarios S --first F --trials N, writing /tmp/lmjx_gpu/NAME/calib.json);
 # merge them with `calibrate_tasks.py --from-runs /tmp/lmjx_gpu/*/calib.json`.
 #
-#     RECOUNT="NAME:K/N ..." FILES="docs/.../results.json ..." [EXECUTOR=file.py] bash benchmarks/eval_background.sh recount
+#     RECOUNT="NAME:K/N ..." FILES="docs/.../results.json ..." [EXECUTOR=file.py] [MAPS=...] bash benchmarks/eval_background.sh recount
 #
 # replays those trials in parts (benchmarks/recount_contacts.py --part K/N, writing
 # /tmp/lmjx_gpu/NAME/recount.json; merge with its --merge), with the executor of this checkout
@@ -77,7 +77,10 @@ case ${1:-} in
   launch)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     for spec in ${RUNS:?RUNS names the runs}; do
-      IFS=: read -r name sim tasks scen fail asms cpus part nice <<< "$spec"
+      IFS=: read -r name sim tasks scen fail asms cpus part nice extra <<< "$spec"
+      [ -n "$extra" ] && { echo "eval_background: '$spec' has more than 9 fields" >&2; exit 2; }
+      [ "$part" = - ] && part=""
+      [ "$nice" = - ] && nice=""
       dir="$WORK/$name"; mkdir -p "$dir"
       [ -f ".evprev/$name.json" ] && [ ! -f "$dir/results.json" ] && cp ".evprev/$name.json" "$dir/results.json"
       args="--sim $sim --tasks $tasks --maps $WORK/maps --out $dir --json"
@@ -97,12 +100,13 @@ case ${1:-} in
     date -u +"launched %H:%M:%S" ;;
   recount)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
-    [ -n "${EXECUTOR:-}" ] && cp "$EXECUTOR" "$REPO/lmjx/executor.py"
-    files=""; for f in ${FILES:?FILES names the results.json files}; do files="$files $(realpath "$f")"; done
+    if [ -n "${EXECUTOR:-}" ]; then cp "$EXECUTOR" "$REPO/lmjx/executor.py" || exit 1; fi
+    files=""
+    for f in ${FILES:?FILES names the results.json files}; do files="$files $(realpath -e "$f")" || exit 1; done
     for spec in ${RECOUNT:?RECOUNT names the parts}; do
       IFS=: read -r name part <<< "$spec"
       dir="$WORK/$name"; mkdir -p "$dir"
-      args="benchmarks/recount_contacts.py$files --maps $WORK/maps --part $part --out $dir/recount.json"
+      args="benchmarks/recount_contacts.py$files --maps ${MAPS:-$WORK/maps} --part $part --out $dir/recount.json"
       echo "$name: ${EXECUTOR:-the executor of this checkout}: $args"
       start "$name" "$dir" "" "XLA_PYTHON_CLIENT_PREALLOCATE=false $(next_gpu)" "$args"
     done

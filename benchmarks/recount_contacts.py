@@ -6,7 +6,8 @@ noise is drawn in the order of the executions.  Replaying the recorded edges in 
 transit to each built by the same `TransitPlanner` from the same arm state, last edge and
 trail, on the same scene as observed) therefore executes the same actions again: the replay
 checks this per action (the target's displacement, the distance to the goal after it and the
-transit's route must equal the record's, to its 0.1 mm rounding) and counts the transit's
+transit's route and the edge's states executed must equal the record's, to its 0.1 mm
+rounding; once an action departs, every later one counts as departed) and counts the transit's
 contacts with the executor of this checkout, e.g. under a newer counting rule than the one
 the trial ran with (docs/EVALUATION.md: LEAVE_CLEAR).  Planning is not repeated: no
 simulator is needed, whatever ASM chose the edges.
@@ -84,11 +85,14 @@ def replay(records: list[dict], maps_dir: Path, say) -> list[dict]:
         planner.queue = [int(st["edge"]) for st in r["steps"]]
         res = planner.run(SimulatedRealWorld(robot, r["seed"]), sample_layout(sc, r["seed"]), r["seed"] * 7)
         steps = []
+        same = True  # until the first action that departs from its record (all after it differ)
         for k, st in enumerate(r["steps"]):
             new = res.steps[k] if k < len(res.steps) and res.steps[k].edge >= 0 else None
             same = bool(
-                new is not None
+                same
+                and new is not None
                 and new.edge == st["edge"]
+                and new.edge_states == st["edge_states"]
                 and abs(new.target_moved_m - st["target_moved_m"]) <= TOL
                 and abs(new.distance_after - st["distance_after_m"]) <= TOL
                 and new.transit_route == st["transit_route"]
@@ -137,13 +141,21 @@ def main() -> None:
     ap.add_argument("--part", default="1/1", help="K/N: replay trials K, K+N, ... of the (deduplicated) records")
     ap.add_argument("--merge", nargs="+", type=Path, help="merge these outputs of parts into --out instead")
     args = ap.parse_args()
-    if args.merge:
-        trials = [t for p in args.merge for t in json.loads(p.read_text())["trials"]]
+    if args.merge:  # each trial once (a part given twice counts once)
+        merged = {tuple(t["key"]): t for p in args.merge for t in json.loads(p.read_text())["trials"]}
+        trials = [merged[k] for k in sorted(merged)]
     else:
-        if args.maps is None:
-            sys.exit("recount_contacts: give --maps (the maps the trials ran on)")
-        k, n = (int(x) for x in args.part.split("/"))
+        if args.maps is None or not args.results:
+            sys.exit("recount_contacts: give the results.json files and --maps (the maps the trials ran on)")
+        try:
+            k, n = (int(x) for x in args.part.split("/"))
+        except ValueError:
+            k = n = 0
+        if not 1 <= k <= n:
+            sys.exit(f"recount_contacts: --part '{args.part}': give K/N with 1 <= K <= N")
         recs = {key(r): r for p in args.results for r in json.loads(p.read_text())}
+        if not recs:
+            sys.exit("recount_contacts: no trials in " + ", ".join(map(str, args.results)))
         todo = [recs[x] for x in sorted(recs)][k - 1 :: n]
         trials = replay(todo, args.maps, lambda line: print(line, file=sys.stderr, flush=True))
     counts = summary(trials)

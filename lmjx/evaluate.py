@@ -67,6 +67,8 @@ class EvalConfig:
         k, n = self.part
         if not 1 <= k <= n:
             raise ConfigError(f"--part {k}/{n}: K/N needs 1 <= K <= N (e.g. 2/4: the second of four parts)")
+        if k > self.trials:
+            raise ConfigError(f"--part {k}/{n} holds no trial of {self.trials} per cell (its first is trial {k})")
 
 
 def trial_seed(base: int, scenario: int, trial: int) -> int:
