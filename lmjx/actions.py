@@ -167,6 +167,7 @@ class TransitPlanner:
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
         self._escape: dict = {}  # (where from, in which scene) -> the `escape` (`_memo`)
+        self.last_tally: dict[str, int] = {}  # the last `actions` call's edges, by why they were not offered
         self._trail: dict = {}  # (where from, how long a trail, in which scene) -> `trail_back` (`_memo`)
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
@@ -544,6 +545,10 @@ class TransitPlanner:
         Where the arm stands inside the margins with no retreat, an edge with no transit from
         there is offered after the `escape` ("escape+" routes), in its place in the order."""
         out: list[Action] = []
+        # why edges were not offered (`last_tally`): their start in the margins, the edge itself
+        # unusable (cut at a wall, or not acting on the target), or no transit to its start
+        tally = {"tested": 0, "start_in_margins": 0, "edge_unusable": 0, "no_transit": 0}
+        self.last_tally = tally
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
         jammed = False  # inside the margins with no way back: transits may begin with the `escape`
         if came_from is not None and self.scene is not None:
@@ -562,9 +567,13 @@ class TransitPlanner:
         while len(out) < want and i < len(edges):
             part = np.asarray(edges[i : i + block])
             i += len(part)
+            tally["tested"] += len(part)
             # the cheapest test first: most edges over a target start where an object stands
-            part = part[~self.blocked(bundle.q_start[part].astype(np.float64))]
+            free = ~self.blocked(bundle.q_start[part].astype(np.float64))
+            tally["start_in_margins"] += int(len(part) - free.sum())
+            part = part[free]
             prefix = self.edge_prefixes(bundle, part) if len(part) else np.zeros(0, int)
+            tally["edge_unusable"] += int((prefix <= 0).sum())
             part, prefix = part[prefix > 0], prefix[prefix > 0]
             if not len(part):
                 continue
@@ -577,6 +586,7 @@ class TransitPlanner:
                     for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc, trail).items():
                         ways[j] = ("escape+" + route, transit)
             ok = sorted(ways)
+            tally["no_transit"] += len(part) - len(ok)
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
                 route, transit = ways[j]

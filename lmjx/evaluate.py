@@ -170,6 +170,8 @@ def evaluate(
                     "candidates": config.planner.greedy_candidates if a == "greedy" else None,
                     "asm_settings": config.planner.settings(),
                     "steps": res.action_records(),
+                    # the decision that found no action, where one ended the trial: why (`StepRecord.no_action`)
+                    **({"no_action": res.steps[-1].no_action} if res.steps and res.steps[-1].no_action else {}),
                 }
             )
             records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))

@@ -116,6 +116,9 @@ class StepRecord:
     transit_left: tuple[str, ...] = ()
     transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
+    # a decision that found no action: the edges over the target it tested, by why none was
+    # offered (`TransitPlanner.actions`' tally: start in the margins, edge unusable, no transit)
+    no_action: dict | None = None
 
     def __repr__(self) -> str:
         moved = "" if np.isnan(self.target_moved_m) else f", target moved {self.target_moved_m * 100:.1f} cm"
@@ -137,6 +140,7 @@ class StepRecord:
             "transit_left": list(self.transit_left),
             "transit_route": self.transit_route,
             "edge_states": self.edge_states,
+            **({"no_action": self.no_action} if self.no_action is not None else {}),
         }
 
 
@@ -338,6 +342,8 @@ class Planner:
             acts = self.transits.actions(self.bundle, order, obs.robot_q, 1, self.came_from, self.trail)
             if acts:
                 rec.edge = acts[0].edge
+            else:
+                rec.no_action = dict(self.transits.last_tally)
             return (acts[0] if acts else None), rec
         if cfg.asm == "greedy":
             want = cfg.greedy_candidates
@@ -345,6 +351,7 @@ class Planner:
                 want = max(1, math.ceil(cfg.greedy_fraction * len(edges)))
             acts = self.transits.actions(self.bundle, order, obs.robot_q, want, self.came_from, self.trail)
             if not acts:
+                rec.no_action = dict(self.transits.last_tally)
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
@@ -368,12 +375,17 @@ class Planner:
                     if sc <= now - cfg.min_progress:
                         improved = True
                         break
+            else:
+                rec.no_action = dict(self.transits.last_tally)
         else:  # one at a time, stopping at the first improvement
+            tally = dict.fromkeys(("tested", "start_in_margins", "edge_unusable", "no_transit"), 0)
             for e in order:
                 if rec.simulated == tries:
                     break
                 self.transits.set_scene(self.sc, obs.objects)  # again: trials run together share `transits`
                 acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
+                for k, v in self.transits.last_tally.items():
+                    tally[k] += v
                 if not acts:
                     continue
                 rec.simulated += 1
@@ -384,6 +396,8 @@ class Planner:
                 if sc <= now - cfg.min_progress:
                     improved = True
                     break
+            if rec.simulated == 0:
+                rec.no_action = tally
         if not (improved or cfg.lazy_fallback):
             best_a = None
         if best_a is not None:

@@ -154,6 +154,12 @@ def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
     edges = [[s["edge"] for s in r["steps"]] for r in whole]
     assert [r["seed"] for r in split] == [1000, 1001] and all(edges), edges  # every trial acted
     assert [[s["edge"] for s in r["steps"]] for r in split] == edges
+    # a trial that ended for want of a transit says why, edge by edge over the target
+    ended = {r["seed"]: r.get("no_action") for r in whole}
+    assert ended[1000] is None and whole[0]["end"] == "goal", whole[0]["end"]
+    why = ended[1001]
+    assert whole[1]["end"] == "no feasible transit" and why["tested"] > 0, (whole[1]["end"], why)
+    assert why["tested"] == why["start_in_margins"] + why["edge_unusable"] + why["no_transit"], why
     for bad in ("3/2", "half"):
         cli(*args, tmp_path / "bad", "--part", bad).one_line_error("--part")
     sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))

@@ -7,6 +7,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
+from ..scenarios import PAPER_BUDGET, Scenario
 from .common import _add_device, _add_robot, _emit, _load_robot, _positive_int
 
 if TYPE_CHECKING:
@@ -35,7 +36,9 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "outcomes, docs/EVALUATION.md) or hard (goals 22-28 cm away: tasks where choosing by simulation matters)",
     )
     p.add_argument(
-        "--max-actions", type=_positive_int, help="action budget per task (default: the task set's, 30 actions)"
+        "--max-actions",
+        type=_positive_int,
+        help=f"action budget per task (default: the task set's: paper {PAPER_BUDGET}, hard {Scenario.budget})",
     )
     p.add_argument(
         "--candidates",
