@@ -58,6 +58,11 @@ RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outsid
 RETREAT_STEP = 0.05  # the retreat's waypoints: at least this far apart (largest joint motion) [rad]
 NEAR_SPEED = 0.1  # inside the margins the arm moves at this fraction of the transits' speed
 ESCAPE_STEP = 0.01  # the way out of a jam (`escape`): largest joint motion of one step [rad]
+# `TransitPlanner.actions`' tally of the edges it tested and why those not offered were not:
+# the start blocked (the table, the arm itself, or within an object's or obstacle's margins),
+# the edge itself unusable (cut short at a fixed obstacle, or not acting on the target), or
+# no transit to its start
+NO_ACTION_KEYS = ("tested", "start_blocked", "edge_unusable", "no_transit")
 ESCAPE_STEPS = 100  # ... at most this many steps
 ESCAPE_DIRS = 64  # ... directions tried at each step besides the free joints' own
 MEMO_KEYS = 4  # per-decision caches (`_memo`): the latest this many keys
@@ -545,9 +550,7 @@ class TransitPlanner:
         Where the arm stands inside the margins with no retreat, an edge with no transit from
         there is offered after the `escape` ("escape+" routes), in its place in the order."""
         out: list[Action] = []
-        # why edges were not offered (`last_tally`): their start in the margins, the edge itself
-        # unusable (cut at a wall, or not acting on the target), or no transit to its start
-        tally = {"tested": 0, "start_in_margins": 0, "edge_unusable": 0, "no_transit": 0}
+        tally = dict.fromkeys(NO_ACTION_KEYS, 0)  # why edges were not offered (`last_tally`)
         self.last_tally = tally
         q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
         jammed = False  # inside the margins with no way back: transits may begin with the `escape`
@@ -570,7 +573,7 @@ class TransitPlanner:
             tally["tested"] += len(part)
             # the cheapest test first: most edges over a target start where an object stands
             free = ~self.blocked(bundle.q_start[part].astype(np.float64))
-            tally["start_in_margins"] += int(len(part) - free.sum())
+            tally["start_blocked"] += int(len(part) - free.sum())
             part = part[free]
             prefix = self.edge_prefixes(bundle, part) if len(part) else np.zeros(0, int)
             tally["edge_unusable"] += int((prefix <= 0).sum())

@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from .actions import Action, TransitPlanner
+from .actions import NO_ACTION_KEYS, Action, TransitPlanner
 from .bundle import Bundle
 from .errors import ConfigError
 from .executor import Executor, Observation
@@ -117,7 +117,7 @@ class StepRecord:
     transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
     # a decision that found no action: the edges over the target it tested, by why none was
-    # offered (`TransitPlanner.actions`' tally: start in the margins, edge unusable, no transit)
+    # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
 
     def __repr__(self) -> str:
@@ -378,7 +378,7 @@ class Planner:
             else:
                 rec.no_action = dict(self.transits.last_tally)
         else:  # one at a time, stopping at the first improvement
-            tally = dict.fromkeys(("tested", "start_in_margins", "edge_unusable", "no_transit"), 0)
+            tally = dict.fromkeys(NO_ACTION_KEYS, 0)
             for e in order:
                 if rec.simulated == tries:
                     break

@@ -159,7 +159,7 @@ def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
     assert ended[1000] is None and whole[0]["end"] == "goal", whole[0]["end"]
     why = ended[1001]
     assert whole[1]["end"] == "no feasible transit" and why["tested"] > 0, (whole[1]["end"], why)
-    assert why["tested"] == why["start_in_margins"] + why["edge_unusable"] + why["no_transit"], why
+    assert why["tested"] == why["start_blocked"] + why["edge_unusable"] + why["no_transit"], why
     for bad in ("3/2", "half"):
         cli(*args, tmp_path / "bad", "--part", bad).one_line_error("--part")
     sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
