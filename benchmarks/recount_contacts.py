@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from lmjx.actions import TransitPlanner
+from lmjx.errors import LmjxError
 from lmjx.evaluate import load_maps
 from lmjx.executor import SimulatedRealWorld
 from lmjx.fileio import write_text_atomic
@@ -157,7 +158,10 @@ def main() -> None:
         if not recs:
             sys.exit("recount_contacts: no trials in " + ", ".join(map(str, args.results)))
         todo = [recs[x] for x in sorted(recs)][k - 1 :: n]
-        trials = replay(todo, args.maps, lambda line: print(line, file=sys.stderr, flush=True))
+        try:
+            trials = replay(todo, args.maps, lambda line: print(line, file=sys.stderr, flush=True))
+        except LmjxError as e:  # a missing or corrupt map, another failure's map: one line
+            sys.exit(f"recount_contacts: {e}")
     counts = summary(trials)
     write_text_atomic(args.out, json.dumps({"counts": counts, "trials": trials}, indent=0) + "\n")
     for g, c in counts.items():
