@@ -14,7 +14,8 @@ ends) instead of losing a whole group that had not finished.
 
 Planning time: a batch's seconds are charged to the trials in it in proportion to their
 candidates (a simulator that does not prefer batches is called per request, and each is
-charged its own call).
+charged its own call); the seconds it spent compiling (`lmjx.compiletime`: the GPU's graphs
+and kernels on first use) are apportioned the same way but kept out of planning time.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from collections.abc import Callable, Generator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+from .compiletime import compile_seconds
 from .executor import Executor
 from .planner import Execute, Simulate, Simulated, TrialResult, simulate_request
 from .simulate import Simulator
@@ -70,11 +72,12 @@ def run_lockstep(
 def _simulate(sim: Simulator, sims: dict[int, Simulate]) -> dict[int, Simulated]:
     if not sim.prefers_batches:
         return {i: simulate_request(sim, req) for i, req in sims.items()}
-    t0 = time.perf_counter()
+    c0, t0 = compile_seconds(sim), time.perf_counter()
     finals = sim.simulate_many([(r.robot_q, r.objects, r.actions) for r in sims.values()])
-    seconds = time.perf_counter() - t0
+    compiled = compile_seconds(sim) - c0
+    seconds = max(0.0, time.perf_counter() - t0 - compiled)
     total = max(1, sum(len(r.actions) for r in sims.values()))
     return {
-        i: Simulated(final, seconds * len(req.actions) / total)
+        i: Simulated(final, seconds * len(req.actions) / total, compiled * len(req.actions) / total)
         for (i, req), final in zip(sims.items(), finals, strict=True)
     }

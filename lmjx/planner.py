@@ -32,6 +32,7 @@ import numpy as np
 
 from .actions import NO_ACTION_KEYS, Action, TransitPlanner
 from .bundle import Bundle
+from .compiletime import compile_seconds, jax_compile_seconds
 from .errors import ConfigError
 from .executor import Executor, Observation
 from .failure import Failure
@@ -116,6 +117,7 @@ class StepRecord:
     transit_left: tuple[str, ...] = ()
     transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
+    compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.compiletime`)
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
@@ -140,6 +142,7 @@ class StepRecord:
             "transit_left": list(self.transit_left),
             "transit_route": self.transit_route,
             "edge_states": self.edge_states,
+            **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
         }
 
@@ -241,10 +244,12 @@ class Simulate:
 
 @dataclass
 class Simulated:
-    """The answer: final object poses (len(actions), n, 7) and the seconds charged for them."""
+    """The answer: final object poses (len(actions), n, 7), the seconds charged for them and,
+    apart, the seconds of compilation they took (`lmjx.compiletime`; not in `seconds`)."""
 
     objects: np.ndarray
     seconds: float
+    compile_s: float = 0.0
 
 
 @dataclass
@@ -258,9 +263,10 @@ Request = Simulate | Execute
 
 
 def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
-    t0 = time.perf_counter()
+    c0, t0 = compile_seconds(sim), time.perf_counter()
     final = sim.simulate(req.robot_q, req.objects, req.actions)
-    return Simulated(final, time.perf_counter() - t0)
+    wall, compiled = time.perf_counter() - t0, compile_seconds(sim) - c0
+    return Simulated(final, max(0.0, wall - compiled), compiled)
 
 
 def drive(steps: Generator[Request, Any, T], sim: Simulator | None, executor: Executor | None = None) -> T:
@@ -320,10 +326,12 @@ class Planner:
         self.trail: np.ndarray | None = None  # every joint target the arm followed in this trial (the way back)
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
-        """One decision, simulating on this planner's simulator."""
-        t0 = time.perf_counter()
+        """One decision, simulating on this planner's simulator; its planning time leaves out
+        what was compiled meanwhile (`StepRecord.compile_s`)."""
+        c0, t0 = compile_seconds(self.sim), time.perf_counter()
         action, rec = drive(self.decide(obs, rng), self.sim)
-        rec.planning_s = time.perf_counter() - t0
+        rec.compile_s = compile_seconds(self.sim) - c0
+        rec.planning_s = max(0.0, time.perf_counter() - t0 - rec.compile_s)
         return action, rec
 
     def decide(self, obs: Observation, rng: np.random.Generator) -> Generator[Simulate, Simulated, tuple]:
@@ -486,19 +494,26 @@ class Planner:
         )
 
     def _timed_decision(self, obs: Observation, rng: np.random.Generator):
-        """`decide`, with its planning time: own computation plus the simulations' charged seconds."""
+        """`decide`, with its planning time: own computation plus the simulations' charged
+        seconds, each less the compilation it included (JAX's, counted apart in `compile_s`;
+        the simulations' answers leave theirs out already)."""
         steps = self.decide(obs, rng)
-        own, charged = 0.0, 0.0
+        own, charged, compiled = 0.0, 0.0, 0.0
         answer = None
         while True:
-            t0 = time.perf_counter()
+            c0, t0 = jax_compile_seconds(), time.perf_counter()
             try:
                 req = steps.send(answer)
             except StopIteration as done:
-                own += time.perf_counter() - t0
+                c = jax_compile_seconds() - c0
+                own += time.perf_counter() - t0 - c
                 action, rec = done.value
-                rec.planning_s = own + charged
+                rec.compile_s = compiled + c
+                rec.planning_s = max(0.0, own + charged)
                 return action, rec
-            own += time.perf_counter() - t0
+            c = jax_compile_seconds() - c0
+            own += time.perf_counter() - t0 - c
+            compiled += c
             answer = yield req
             charged += answer.seconds
+            compiled += answer.compile_s

@@ -1,0 +1,83 @@
+"""Compiling is not planning: a decision's compilation (JAX's, a simulator's) is recorded in
+`compile_s` and left out of `planning_s`, whichever way its simulations are answered."""
+
+from __future__ import annotations
+
+import os
+import time
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from lmjx.compiletime import compile_seconds, jax_compile_seconds
+from lmjx.lockstep import _simulate
+from lmjx.planner import Planner, Simulate, StepRecord, simulate_request
+
+SIM_COMPILE = 0.2  # [s] what the stand-in simulator "compiles" on its first call
+
+
+class CompilingSim:
+    """A simulator that spends SIM_COMPILE s capturing on its first call and reports it as
+    the GPU simulator does (`capture_seconds`)."""
+
+    def __init__(self, batches: bool) -> None:
+        self.prefers_batches = batches
+        self.capture_seconds = 0.0
+
+    def simulate(self, robot_q, objects, actions):
+        if self.capture_seconds == 0.0:
+            t0 = time.perf_counter()
+            time.sleep(SIM_COMPILE)
+            self.capture_seconds += time.perf_counter() - t0
+        return np.zeros((len(actions), len(objects), 7))
+
+    def simulate_many(self, requests):
+        return [self.simulate(*r) for r in requests]
+
+
+@pytest.mark.parametrize("batches", [False, True], ids=["one request", "lockstep batch"])
+def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
+    first_call = {}
+
+    def decide(obs, rng):
+        k = float(int.from_bytes(os.urandom(4), "little"))  # a new program: no compilation cache hit
+
+        def work(x):  # enough operations that compiling them takes a measurable while
+            for i in range(150):
+                x = jnp.tanh(x @ x.T * 1e-3 + k + i)
+            return x
+
+        f = jax.jit(work)
+        t0 = time.perf_counter()
+        f(jnp.ones((64, 64))).block_until_ready()
+        first_call["s"] = time.perf_counter() - t0
+        yield Simulate(np.zeros(7), np.zeros((1, 7)), [None])
+        return None, StepRecord(-1, 0, 0, None, 0.0, 0.0, 0.0)
+
+    sim = CompilingSim(batches)
+    jax_compile_seconds()  # listening from here
+    t0 = time.perf_counter()
+    steps = Planner._timed_decision(SimpleNamespace(decide=decide), None, None)
+    req = next(steps)
+    answer = _simulate(sim, {0: req})[0] if batches else simulate_request(sim, req)
+    assert answer.compile_s == pytest.approx(sim.capture_seconds, abs=1e-9)
+    assert answer.seconds < 0.05
+    with pytest.raises(StopIteration) as done:
+        steps.send(answer)
+    wall = time.perf_counter() - t0
+    _, rec = done.value.value
+    jax_part = rec.compile_s - sim.capture_seconds
+    # JAX's events account for at least half of the jitted function's first call (tracing, lowering,
+    # compiling), and every second of the decision is either planning or compiling
+    assert jax_part >= 0.5 * first_call["s"]
+    assert rec.planning_s + rec.compile_s == pytest.approx(wall, abs=0.05)
+    assert rec.planning_s < wall - SIM_COMPILE
+    assert rec.summary()["compile_s"] == round(rec.compile_s, 3)
+
+
+def test_simulator_without_compilation() -> None:
+    """C MuJoCo's simulator compiles nothing: only JAX's seconds count."""
+    assert compile_seconds(SimpleNamespace()) == jax_compile_seconds()
