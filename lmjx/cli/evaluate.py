@@ -19,7 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--trials tasks (the same layouts and 'real'-world perturbations for every ASM and failure).  Writes "
         "results.json after every trial (a rerun continues where it stopped), then report.md, bubble.png and "
         "actions.png.  Maps come from --maps/<failure>.h5 (lmjx build-map).  A task's time is its planning "
-        "(wall clock) plus its robot time (the simulated execution).",
+        "(wall clock, less any compiling of kernels on first use: recorded apart as compile_s) plus its robot "
+        "time (the simulated execution).",
     )
     p.add_argument("--failures", help="comma separated (default: the robot's presets; the Panda's case1,case2)")
     _add_robot(p)

@@ -79,7 +79,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Push the target cube of a scenario into its goal region using the edges of a map, choosing "
         "each action with an action selection mechanism (random, lazy or greedy) and executing it in a simulated "
         "'real' world whose physics differ from the planner's.  The times printed: planning is wall-clock time "
-        "here; robot time is the simulated time the arm spends executing the actions.",
+        "here, less any compiling of kernels on first use (printed apart); robot time is the simulated time the "
+        "arm spends executing the actions.",
     )
     p.add_argument("--map", required=True, help="a map file from lmjx build-map")
     p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
@@ -111,6 +112,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         f"  planning {res.planning_s:.1f} s (wall clock), robot time {res.execution_s:.1f} s (simulated execution), "
         f"target {res.final_distance * 100:.1f} cm from the goal's centre",
     ]
+    compiled = sum(s.compile_s for s in res.steps)
+    if compiled >= 0.05:
+        lines.append(f"  compiling on first use: {compiled:.1f} s (not in the planning time)")
     if r.simulator_description is not None:
         lines.append(f"  simulator: {r.simulator_description}")
     if args.render:
