@@ -2,7 +2,9 @@
 them out.
 
 A trial's first decision on a fresh machine compiles what it runs: lmjx's JAX kernels
-(tracing, lowering and XLA's compilation: JAX's monitoring events, counted here) and the
+(lowering and XLA's compilation: JAX's monitoring events, counted here per thread; not
+tracing, which JAX before 0.10 reports again for every nested jit, and which takes a few
+per cent of a kernel's compilation) and the
 GPU simulator's CUDA graphs with MuJoCo Warp's kernels (its `capture_seconds`, read with
 `simulator_compile_seconds`).  On the GPU this took 173-175 s of a first decision
 (docs/EVALUATION.md), charged until then to the trial that made it and counted against its
@@ -16,23 +18,27 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-COMPILE_EVENTS = "/jax/core/compile/"  # JAX's duration events of tracing, lowering and compiling
+# JAX's duration events of lowering a program and compiling it (each reported once, on the
+# thread that compiled)
+COMPILE_EVENTS = ("/jax/core/compile/jaxpr_to_mlir_module_duration", "/jax/core/compile/backend_compile_duration")
 
 _lock = threading.Lock()
-_seconds = 0.0
+_seconds: dict[int, float] = {}  # thread -> seconds it spent compiling
 _listening = False
 
 
 def _heard(event: str, duration: float, **_: Any) -> None:
-    global _seconds
-    if event.startswith(COMPILE_EVENTS):
+    if event in COMPILE_EVENTS:
+        me = threading.get_ident()
         with _lock:
-            _seconds += float(duration)
+            _seconds[me] = _seconds.get(me, 0.0) + float(duration)
 
 
 def jax_compile_seconds() -> float:
-    """Seconds JAX has spent tracing, lowering and compiling in this process since the first
-    call (which starts listening; a JAX without monitoring events reports 0)."""
+    """Seconds JAX has spent lowering and compiling on the calling thread since the first
+    call (which starts listening; a JAX without monitoring events reports 0).  Per thread:
+    a decision is not charged with what another thread compiled meanwhile (the test suite
+    compiles kernels ahead in a thread of its own)."""
     global _listening
     if not _listening:
         with _lock:
@@ -44,7 +50,7 @@ def jax_compile_seconds() -> float:
                 except (ImportError, AttributeError):
                     pass
                 _listening = True
-    return _seconds
+    return _seconds.get(threading.get_ident(), 0.0)
 
 
 def simulator_compile_seconds(sim: Any) -> float:

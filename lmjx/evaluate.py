@@ -162,6 +162,7 @@ def evaluate(
                     "success": res.success,
                     "actions": res.actions,
                     "planning_s": round(res.planning_s, 3),
+                    "compile_s": round(res.compile_s, 3),  # not in planning_s (lmjx.compiletime)
                     "execution_s": round(res.execution_s, 3),
                     "final_distance_m": round(res.final_distance, 4),
                     "end": res.reason,

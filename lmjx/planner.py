@@ -160,6 +160,7 @@ class TrialResult:
     final_distance: float
     steps: list[StepRecord] = field(default_factory=list)
     reason: str = ""  # how the trial ended: "goal" whenever the target ends in the goal (success)
+    compile_s: float = 0.0  # seconds its decisions spent compiling (not in planning_s; `lmjx.compiletime`)
     stopped: str = ""  # what stopped the planner (one of ENDS): it stops once the observed target
     # is `goal_margin` inside the goal, so a target that ended in the goal but nearer its edge
     # shows here what came next (e.g. "no feasible transit")
@@ -176,6 +177,7 @@ class TrialResult:
             "success": self.success,
             "actions": self.actions,
             "planning_s": round(self.planning_s, 3),
+            "compile_s": round(self.compile_s, 3),
             "execution_s": round(self.execution_s, 3),
             "final_distance_m": round(self.final_distance, 4),
             "end": self.reason,
@@ -486,6 +488,7 @@ class Planner:
             success=bool(success),
             actions=sum(1 for s in steps if s.edge >= 0),
             planning_s=planning,
+            compile_s=sum(s.compile_s for s in steps),
             execution_s=obs.time,
             final_distance=float(goal_distance(self.sc, truth[0, :2])),
             steps=steps,

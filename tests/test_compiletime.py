@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from types import SimpleNamespace
 
@@ -70,9 +71,9 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
     wall = time.perf_counter() - t0
     _, rec = done.value.value
     jax_part = rec.compile_s - sim.capture_seconds
-    # JAX's events account for at least half of the jitted function's first call (tracing, lowering,
-    # compiling), and every second of the decision is either planning or compiling
-    assert jax_part >= 0.5 * first_call["s"]
+    # JAX's events (lowering, compiling) account for much of the jitted function's first
+    # call, and every second of the decision is either planning or compiling
+    assert jax_part >= 0.3 * first_call["s"]
     assert rec.planning_s + rec.compile_s == pytest.approx(wall, abs=0.05)
     assert rec.planning_s < wall - SIM_COMPILE
     assert rec.summary()["compile_s"] == round(rec.compile_s, 3)
@@ -81,3 +82,22 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
 def test_simulator_without_compilation() -> None:
     """C MuJoCo's simulator compiles nothing: only JAX's seconds count."""
     assert compile_seconds(SimpleNamespace()) == jax_compile_seconds()
+
+
+def test_compiling_on_another_thread_is_not_charged() -> None:
+    """What another thread compiles (the suite's compile-ahead thread, say) is not this
+    thread's: only the compiling thread's count grows."""
+    k = float(int.from_bytes(os.urandom(4), "little"))
+    here = jax_compile_seconds()
+    seen = {}
+
+    def other() -> None:
+        before = jax_compile_seconds()
+        jax.jit(lambda x: jnp.tanh(x) * k)(jnp.ones(8)).block_until_ready()
+        seen["other"] = jax_compile_seconds() - before
+
+    t = threading.Thread(target=other)
+    t.start()
+    t.join()
+    assert seen["other"] > 0
+    assert jax_compile_seconds() == here
