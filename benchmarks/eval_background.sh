@@ -14,7 +14,8 @@
 # run's scheduling priority, e.g. 19 for runs that should only take idle cores) pinned to the
 # cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
-# run resumes it (benchmarks/evprev.py writes those from merged results).  `lmjx evaluate`
+# run resumes it (benchmarks/evprev.py writes those from merged results; benchmarks/evparts.py
+# lists unfinished cells as parts holding only their missing trials).  `lmjx evaluate`
 # sizes its pools to the cores it is pinned to (lmjx/cores.py; LMJX_CORES=N, passed on, caps
 # them without pinning).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one
 # per launch, so a later launch with other code leaves the running ones alone).  `wait` returns

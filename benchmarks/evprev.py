@@ -9,6 +9,10 @@ evaluate` then runs only the trials not yet there.  Runs with no finished trial 
 
     python benchmarks/evprev.py docs/eval_hard_gpu_1m/results.json --runs "hg22:gpu:hard:2:case2:greedy:- ..."
 
+`--redo END` leaves out the trials that ended so (e.g. "planning time" on a starved host): they
+run again, and `eval_acceptance.py --merge` puts their new records in place of the old.
+`benchmarks/evparts.py` makes a RUNS list of parts that hold only the missing trials.
+
 The maps must be the same as those the trials ran on (`benchmarks/map_digest.py`).
 """
 
@@ -41,10 +45,18 @@ def main() -> None:
     ap.add_argument("results", nargs="+", type=Path, help="results.json files (merged runs)")
     ap.add_argument("--runs", required=True, help="the RUNS list of eval_background.sh launch")
     ap.add_argument("--out", type=Path, default=Path(".evprev"), help="folder for NAME.json (default .evprev)")
+    ap.add_argument(
+        "--redo",
+        action="append",
+        default=[],
+        help="leave out the trials that ended so, e.g. 'planning time' (they run again; repeatable)",
+    )
     args = ap.parse_args()
     records = {}
     for p in args.results:
         for r in json.loads(p.read_text()):
+            if r["end"] in args.redo:
+                continue
             sim = r.get("sim") if r["asm"] != "random" else "none"
             records[(r.get("tasks", "hard"), sim, r["failure"], r["scenario"], r["asm"], r["seed"])] = r
     args.out.mkdir(parents=True, exist_ok=True)
