@@ -20,10 +20,11 @@ The trials each run will do are printed on stderr.  Random's records count for a
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
+
+from evprev import belongs, read_records
 
 from lmjx.evaluate import trial_seed
 
@@ -31,16 +32,10 @@ PART_NAMES = "abcdefghijklmnopqrstuvwxyz"
 
 
 def missing(records: list[dict], sim: str, tasks: str, scenario: int, failure: str, asm: str, trials: int,
-            redo: set[str], seed: int = 0) -> list[int]:  # fmt: skip
-    """The trial indices of the cell with no record, or one that ended in `redo`."""
-    done = {
-        r["seed"]
-        for r in records
-        if r.get("tasks", "hard") == tasks
-        and (r["failure"], r["scenario"], r["asm"]) == (failure, scenario, asm)
-        and (asm == "random" or r.get("sim") == sim)
-        and r["end"] not in redo
-    }
+            seed: int = 0) -> list[int]:  # fmt: skip
+    """The trial indices of the cell with no record among `records` (`evprev.read_records`,
+    which leaves out those to run again)."""
+    done = {r["seed"] for r in records if belongs(r, sim, tasks, str(scenario), failure, asm)}
     return [t for t in range(trials) if trial_seed(seed, scenario, t) not in done]
 
 
@@ -65,19 +60,14 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=15, help="trials per cell (default 15)")
     ap.add_argument("--nice", type=int, default=0, help="the runs' scheduling priority (default 0)")
     args = ap.parse_args()
-    records = []
-    for p in args.results:
-        try:
-            records += json.loads(p.read_text())
-        except (OSError, ValueError) as e:
-            sys.exit(f"evparts: {p}: {e}")
+    records = list(read_records(args.results, args.redo, "evparts").values())
     runs = []
     for spec in args.cells.split():
         f = spec.split(":")
         if len(f) != 7 or not f[3].isdigit() or not f[6].isdigit() or int(f[6]) < 1 or len(f[0]) == 0:
             sys.exit(f"evparts: '{spec}' is not NAME:SIM:TASKS:SCENARIO:FAILURE:ASM:PROCS (one of each, PROCS >= 1)")
         name, sim, tasks, scen, fail, asm, procs = f[0], f[1], f[2], int(f[3]), f[4], f[5], int(f[6])
-        todo = missing(records, sim, tasks, scen, fail, asm, args.trials, set(args.redo))
+        todo = missing(records, sim, tasks, scen, fail, asm, args.trials)
         if not todo:
             print(f"{name}: complete", file=sys.stderr)
             continue

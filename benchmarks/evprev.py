@@ -40,6 +40,24 @@ def belongs(rec: dict, sim: str, tasks: str, scen: str, fail: str, asms: str) ->
     return rec["asm"] == "random" or rec.get("sim") == sim
 
 
+def read_records(paths: list[Path], redo: list[str], tool: str) -> dict[tuple, dict]:
+    """The trials of the results.json files `paths`, each once (by task set, simulator, cell
+    and seed; Random's for any simulator), but those that ended in a way `redo` names; a file
+    that cannot be read stops `tool` in one line."""
+    records = {}
+    for p in paths:
+        try:
+            found = json.loads(p.read_text())
+        except (OSError, ValueError) as e:
+            sys.exit(f"{tool}: {p}: {e}")
+        for r in found:
+            if r["end"] in redo:
+                continue
+            sim = r.get("sim") if r["asm"] != "random" else "none"
+            records[(r.get("tasks", "hard"), sim, r["failure"], r["scenario"], r["asm"], r["seed"])] = r
+    return records
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("results", nargs="+", type=Path, help="results.json files (merged runs)")
@@ -52,13 +70,7 @@ def main() -> None:
         help="leave out the trials that ended so, e.g. 'planning time' (they run again; repeatable)",
     )
     args = ap.parse_args()
-    records = {}
-    for p in args.results:
-        for r in json.loads(p.read_text()):
-            if r["end"] in args.redo:
-                continue
-            sim = r.get("sim") if r["asm"] != "random" else "none"
-            records[(r.get("tasks", "hard"), sim, r["failure"], r["scenario"], r["asm"], r["seed"])] = r
+    records = read_records(args.results, args.redo, "evprev")
     args.out.mkdir(parents=True, exist_ok=True)
     for spec in args.runs.split():
         fields = spec.split(":")
