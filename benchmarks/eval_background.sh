@@ -8,6 +8,9 @@
 #     RUNS="NAME:SIM:TASKS:SCENARIOS:FAILURES:ASMS:CPUS[:K/N[:NICE]] ..." bash benchmarks/eval_background.sh launch
 #     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
 #
+# (MAPS: the maps' folder, default /tmp/lmjx_gpu/maps; EXTRA: more `lmjx evaluate` options
+# for every run of this launch, e.g. "--seed 7 --when-stuck options")
+#
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
 # cell split in N runs, one per K, each with the cell's finished trials carried; NICE: the
@@ -84,7 +87,7 @@ case ${1:-} in
       [ "$nice" = - ] && nice=""
       dir="$WORK/$name"; mkdir -p "$dir"
       [ -f ".evprev/$name.json" ] && [ ! -f "$dir/results.json" ] && cp ".evprev/$name.json" "$dir/results.json"
-      args="--sim $sim --tasks $tasks --maps $WORK/maps --out $dir --json"
+      args="--sim $sim --tasks $tasks --maps ${MAPS:-$WORK/maps} --out $dir --json ${EXTRA:-}"
       [ "$scen" != - ] && args="$args --scenarios $scen"
       [ "$fail" != - ] && args="$args --failures $fail"
       [ "$asms" != - ] && args="$args --asms $asms"

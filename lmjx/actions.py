@@ -71,6 +71,8 @@ MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
 MIN_EDGE_STATES = 5  # an edge cut short at a fixed obstacle keeps at least this many states (0.1 s)
+OPTIONS_SAMPLE = 256  # `options`: edges whose starts it tests
+OPTIONS_CHECK = 64  # `options`: clear ones whose states it tests
 WHOLE = np.iinfo(np.int32).max  # `edge_prefixes` of an edge executed whole (no scene)
 
 
@@ -400,6 +402,30 @@ class TransitPlanner:
             prefix[nearest > -ACT_DEPTH] = 0
         prefix[prefix < MIN_EDGE_STATES] = 0
         return prefix
+
+    def options(
+        self,
+        bundle: Bundle,
+        edges: np.ndarray,
+        rng: np.random.Generator,
+        sample: int = OPTIONS_SAMPLE,
+        check: int = OPTIONS_CHECK,
+    ) -> float:
+        """An estimate of how many of `edges` (those over the target) this scene would offer,
+        transits aside: their share whose start is clear (`blocked`) in a sample of `sample`,
+        times the share usable (`edge_prefixes` > 0: acting on the target, not cut short at a
+        fixed obstacle) of at most `check` of those, times len(edges)."""
+        edges = np.asarray(edges)
+        if not len(edges):
+            return 0.0
+        part = np.sort(edges if len(edges) <= sample else rng.choice(edges, sample, replace=False))
+        free = ~self.blocked(bundle.q_start[part].astype(np.float64))
+        if not free.any():
+            return 0.0
+        clear = part[free]
+        clear = np.sort(clear if len(clear) <= check else rng.choice(clear, check, replace=False))
+        usable = float((self.edge_prefixes(bundle, clear) > 0).mean())
+        return len(edges) * float(free.mean()) * usable
 
     def action(self, bundle: Bundle, edge: int, q_now: np.ndarray) -> Action | None:
         acts = self.actions(bundle, np.array([edge]), q_now, 1)

@@ -238,18 +238,26 @@ class PlanResult:
 
 
 def planner_config(
-    asm: str, sim: str, max_actions: int | None = None, candidates: int | None = None, asm_settings: str = "lmjx"
+    asm: str,
+    sim: str,
+    max_actions: int | None = None,
+    candidates: int | None = None,
+    asm_settings: str = "lmjx",
+    when_stuck: str = "best",
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
-    default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"), and
-    asm_settings="paper" the ASMs as the paper states them."""
+    default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
+    asm_settings="paper" the ASMs as the paper states them, `when_stuck` Greedy's rule when
+    no candidate is predicted to improve (`PlannerConfig.when_stuck`)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
         asm=asm,
         max_actions=max_actions,
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
+        when_stuck=when_stuck,
     )
+    config.validate()
     return config.paper() if asm_settings == "paper" else config
 
 
@@ -262,6 +270,7 @@ def plan_task(
     max_actions: int | None = None,
     candidates: int | None = None,
     asm_settings: str = "lmjx",
+    when_stuck: str = "best",
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -275,11 +284,13 @@ def plan_task(
     the "real" world's physics and the planner's choices.  `max_actions`: the budget
     (default: the task set's); `candidates`: Greedy's simulated actions per decision
     (default 1,024 with the GPU simulator, 32 on the CPU); `asm_settings`: "lmjx" or
-    "paper" (the ASMs as the paper states them); `sim`: the planner's simulator ("auto",
-    "cpu", "cpu-near", "gpu"); `robot`: read the map with this robot (default: the one it
-    names); `failure`: refuse a map built for another failure; `render`: write the trial as
-    a .png frame strip, .gif or .mp4 (needs OpenGL, e.g. MUJOCO_GL=osmesa); `say`: where the
-    simulator's choice goes, once the arguments are checked (default: nowhere).
+    "paper" (the ASMs as the paper states them); `when_stuck`: Greedy's rule when no
+    candidate is predicted to improve ("best" or "options", `PlannerConfig.when_stuck`);
+    `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
+    with this robot (default: the one it names); `failure`: refuse a map built for another
+    failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
+    e.g. MUJOCO_GL=osmesa); `say`: where the simulator's choice goes, once the arguments are
+    checked (default: nowhere).
 
     Example (the map `make run` writes; Random simulates nothing, so this takes seconds):
 
@@ -325,7 +336,7 @@ def plan_task(
         sim_name, why = resolve_simulator(sim)
         if say is not None:
             say(f"simulator {sim_name} ({why})")
-    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings)
+    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck)
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None

@@ -47,6 +47,8 @@ T = TypeVar("T")
 ASMS = ("random", "lazy", "greedy")
 OFF_TABLE_PENALTY = 1.0  # [m] per object that leaves the table
 TARGET_LOST = 10.0  # [m] when the target leaves the table
+WHEN_STUCK = ("best", "options")
+OPTIONS_NEAR = 0.8  # when_stuck="options": candidates with at least this share of the most options qualify
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,11 @@ class PlannerConfig:
     lazy_cap: bool = True  # Lazy stops after lazy_tries simulations (the paper: no cap)
     greedy_fraction: float | None = None  # Greedy's subset: this fraction of the edges over the
     # target (at least one) instead of greedy_candidates
+    when_stuck: str = "best"  # Greedy when no candidate is predicted to bring the target min_progress
+    # closer: "best" takes the best predicted all the same (the paper's Greedy); "options" takes,
+    # among the candidates that keep every object on the table, the one whose predicted state
+    # leaves the most edges to offer (starts clear, acting on the target: `TransitPlanner.options`),
+    # the best predicted of those within OPTIONS_NEAR of the most
 
     __repr__ = config_repr
 
@@ -78,6 +85,8 @@ class PlannerConfig:
             raise ConfigError("max_actions, greedy_candidates and lazy_tries must be positive")
         if self.greedy_fraction is not None and not 0.0 < self.greedy_fraction <= 1.0:
             raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
+        if self.when_stuck not in WHEN_STUCK:
+            raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
 
     def paper(self) -> PlannerConfig:
         """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
@@ -98,6 +107,7 @@ class PlannerConfig:
             "lazy_fallback": self.lazy_fallback,
             "lazy_tries": self.lazy_tries if self.lazy_cap else None,
             "greedy_subset": greedy,
+            "when_stuck": self.when_stuck,
         }
 
 
@@ -121,6 +131,10 @@ class StepRecord:
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
+    # Greedy with when_stuck="options" at a decision where no candidate was predicted to
+    # improve: the chosen candidate's estimated options and predicted score, and the best
+    # predicted score (`Planner._most_options`)
+    stuck: dict | None = None
 
     def __repr__(self) -> str:
         moved = "" if np.isnan(self.target_moved_m) else f", target moved {self.target_moved_m * 100:.1f} cm"
@@ -144,6 +158,7 @@ class StepRecord:
             "edge_states": self.edge_states,
             **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
+            **({"stuck": self.stuck} if self.stuck is not None else {}),
         }
 
 
@@ -366,6 +381,9 @@ class Planner:
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
             best = self.best_of(s, rng)
+            if cfg.when_stuck == "options" and float(s[best]) > now - cfg.min_progress:
+                best, rec.stuck = self._most_options(done.objects, s)
+                self.transits.set_scene(self.sc, obs.objects)  # the observed scene again
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
             rec.edge = acts[best].edge
@@ -419,6 +437,33 @@ class Planner:
     def best_of(scores: np.ndarray, rng: np.random.Generator) -> int:
         """Greedy's choice among its simulated candidates: the lowest score."""
         return int(np.argmin(scores))
+
+    def _most_options(self, predicted: np.ndarray, scores: np.ndarray) -> tuple[int, dict]:
+        """Greedy stuck (no candidate predicted to improve), when_stuck="options": of the
+        candidates that keep every object on the table (else all), the one whose predicted
+        state (`predicted`, (n, k, 7)) leaves the most edges to offer, by
+        `TransitPlanner.options`; the best predicted of those within OPTIONS_NEAR of the most.
+        Returns its index and what the record keeps."""
+        keep = np.nonzero(scores < OFF_TABLE_PENALTY)[0]
+        if not len(keep):
+            keep = np.arange(len(scores))
+        half = float(self.sc.target.half[0])
+        opts = np.zeros(len(scores))
+        for i in keep:
+            target = predicted[i, 0, :2]
+            edges = edges_over_target(self.bundle, self.reach, target, half, self.config.target_margin)
+            self.transits.set_scene(self.sc, predicted[i])
+            # the same sample of a state's edges whoever asks (the trial's rng is left alone)
+            opts[i] = self.transits.options(self.bundle, edges, np.random.default_rng(len(edges)))
+        near = keep[opts[keep] >= OPTIONS_NEAR * opts[keep].max()]
+        best = int(near[np.argmin(scores[near])])
+        rec = {
+            "options": round(float(opts[best]), 1),
+            "most_options": round(float(opts[keep].max()), 1),
+            "predicted_m": round(float(scores[best]), 4),
+            "best_predicted_m": round(float(scores.min()), 4),
+        }
+        return best, rec
 
     def _futile_here(self, edge: int, target: np.ndarray) -> bool:
         at = self.futile.get(edge)

@@ -775,3 +775,72 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     assert [a.edge for a in jam] == sorted(a.edge for a in jam)
     for a in jam:
         np.testing.assert_array_equal(a.q[: len(path)], path)
+
+
+def _observed(robot, sc, seed: int) -> np.ndarray:
+    """(n, 7) the objects of a seeded layout of `sc` as the planner observes them."""
+    scene = build_scene(robot, sc)
+    d = mujoco.MjData(scene.model)
+    q = park_pose(robot, parse_failure("case2", robot))
+    set_state(scene, d, q, object_qpos(scene, sample_layout(sc, seed).poses))
+    mujoco.mj_kinematics(scene.model, d)
+    return read_objects(scene, d)
+
+
+def test_options_estimate_what_actions_would_offer_before_transits(robot, plan_map):
+    """`TransitPlanner.options` with every edge sampled and checked is exactly the number of
+    edges over the target that `actions` finds neither start-blocked nor unusable (its tally);
+    a sample of them estimates it within four binomial standard errors."""
+    from lmjx.planner import edges_over_target
+
+    m = load_map(plan_map)
+    sc = scenario(1, tasks="hard")
+    objects = _observed(robot, sc, 3)
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    tp.set_scene(sc, objects)
+    edges = edges_over_target(m.edges, m.reach, objects[0, :2], float(sc.target.half[0]), 0.01)
+    tp.actions(m.edges, edges, tp.park, len(edges))
+    t = tp.last_tally
+    assert t["tested"] == len(edges)
+    offered = len(edges) - t["start_blocked"] - t["edge_unusable"]
+    assert 0 < offered < len(edges)
+    rng = np.random.default_rng(0)
+    assert tp.options(m.edges, edges, rng, sample=len(edges), check=len(edges)) == pytest.approx(offered)
+    n = len(edges) // 2
+    est = tp.options(m.edges, edges, rng, sample=n, check=n)
+    p = offered / len(edges)
+    assert abs(est - offered) <= 4 * len(edges) * np.sqrt(p * (1 - p) / n) + 1e-9
+    assert tp.options(m.edges, edges[:0], rng) == 0.0
+
+
+def test_greedy_stuck_takes_the_candidate_that_leaves_the_most_options(robot, plan_map):
+    """when_stuck="options": of the candidates that keep every object on the table, those
+    with at least OPTIONS_NEAR of the most options qualify, and the best predicted of them is
+    taken; the record keeps both figures.  With "best" a decision is unchanged."""
+    from lmjx.planner import OFF_TABLE_PENALTY, OPTIONS_NEAR, Planner, edges_over_target
+
+    m = load_map(plan_map)
+    setup = setup_trial(robot, m, 1, PlannerConfig(asm="greedy", when_stuck="options"), 3, tasks="hard")
+    planner: Planner = setup.planner
+    sc = planner.sc
+    base = _observed(robot, sc, 3)
+    predicted = np.repeat(base[None], 6, axis=0)
+    for i, dx in enumerate((0.0, 0.03, -0.03, 0.06, -0.06, 0.09)):  # the target moved along x
+        predicted[i, 0, 0] += dx
+    scores = np.array([0.20, 0.21, 0.22, 0.23, 0.24, OFF_TABLE_PENALTY + 0.1])
+    best, rec = planner._most_options(predicted, scores)
+    tp = planner.transits
+    opts = []
+    for i in range(5):
+        tp.set_scene(sc, predicted[i])
+        e = edges_over_target(m.edges, m.reach, predicted[i, 0, :2], float(sc.target.half[0]), 0.01)
+        opts.append(tp.options(m.edges, e, np.random.default_rng(len(e))))
+    opts = np.array(opts)
+    qualify = np.nonzero(opts >= OPTIONS_NEAR * opts.max())[0]
+    assert best == qualify[np.argmin(scores[qualify])] and best != 5
+    assert rec["options"] == pytest.approx(opts[best], abs=0.05)
+    assert rec["most_options"] == pytest.approx(opts.max(), abs=0.05)
+    assert rec["predicted_m"] == pytest.approx(scores[best]) and rec["best_predicted_m"] == pytest.approx(0.20)
+    assert PlannerConfig().when_stuck == "best"
+    with pytest.raises(Exception, match="when stuck"):
+        PlannerConfig(when_stuck="wander").validate()

@@ -54,6 +54,15 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "taking its best when none helps); paper: the ASMs as the paper states them (none of these; Greedy "
         "simulates a quarter of the edges over the target)",
     )
+    p.add_argument(
+        "--when-stuck",
+        choices=("best", "options"),
+        default="best",
+        help="greedy, when no candidate is predicted to bring the target 5 mm closer: best (default, the paper's "
+        "Greedy) takes the best predicted all the same; options takes the candidate whose predicted state leaves "
+        "the most edges to offer (starts clear of the scene, acting on the target), the best predicted among "
+        "those with at least 80%% of the most",
+    )
     _add_sim(p)
 
 
@@ -69,7 +78,7 @@ def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
 def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
     from ..api import planner_config
 
-    return planner_config(asm, sim, args.max_actions, args.candidates, args.asm_settings)
+    return planner_config(asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -101,7 +110,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
-        candidates=args.candidates, asm_settings=args.asm_settings, sim=args.sim,
+        candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
