@@ -61,7 +61,7 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         help="greedy, when no candidate is predicted to bring the target 5 mm closer: best (default, the paper's "
         "Greedy) takes the best predicted all the same; options takes the candidate whose predicted state leaves "
         "the most edges to offer (starts clear of the scene, acting on the target), the best predicted among "
-        "those with at least 80%% of the most",
+        "those with at least 80%% of the most (measured worse on the hard set's case-2 tunnel: docs/EVALUATION.md)",
     )
     _add_sim(p)
 
