@@ -211,9 +211,10 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert {"success", "actions", "planning_s", "execution_s", "end", "asm_settings", "steps"} <= set(out)
     assert out["asm_settings"]["futile_filter"] is True and out["tasks"] == "paper"
     paper = json.loads(cli("plan", "--map", small_map, "--scenario", "2", "--asm", "lazy", "--asm-settings", "paper",
-                           "--max-actions", "1", "--json").ok().stdout)  # fmt: skip
+                           "--when-stuck", "options", "--max-actions", "1", "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
-            "greedy_subset": "0.25 of the edges over the target"}  # fmt: skip
+            "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options"}  # fmt: skip
+    assert out["asm_settings"]["when_stuck"] == "best"
     assert paper["asm_settings"] == want
     for args, message in (
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
