@@ -71,6 +71,8 @@ MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
 MIN_EDGE_STATES = 5  # an edge cut short at a fixed obstacle keeps at least this many states (0.1 s)
+SMALL_CHUNK = 64  # configurations per call of the planner's clearance programs on the CPU
+# (a call holds a median of about 40: a chunk of 256 cost 5.3 ms for 40 where 64 costs 1.1 ms)
 OPTIONS_SAMPLE = 256  # `options`: edges whose starts it tests
 OPTIONS_CHECK = 64  # `options`: clear ones whose states it tests
 WHOLE = np.iinfo(np.int32).max  # `edge_prefixes` of an edge executed whole (no scene)
@@ -163,7 +165,8 @@ class TransitPlanner:
         self.park = park_pose(robot, failure)
         self.batched = batched
         self._kernel = None
-        self._box_kernel = None
+        self._box_kernels: dict[int, Any] = {}  # box slots -> the scene's clearance program (`box_slots`)
+        self._box_scene: dict[int, Any] = {}  # box slots -> the scene version its shared arrays hold
         self._edge_kernel = None
         from .batching import backend
 
@@ -202,8 +205,6 @@ class TransitPlanner:
         self._scene_version = key
         self.acting = acting
         self._from_park.clear()  # park -> start depends on where the objects are
-        if self._box_kernel is not None:
-            self._box_kernel.set_shared(*self.scene.padded())
 
     def forget(self) -> None:
         """Drop what was kept about the scenes set so far (the transits through the park pose,
@@ -234,9 +235,14 @@ class TransitPlanner:
         """(n, nb) the arm's clearance at each configuration of qs (n, nj) to each box of the
         scene (lmjx's box-clearance kernel, on the accelerator JAX uses)."""
         assert self.scene is not None, "set_scene first"
-        if self._box_kernel is None:
-            self._box_kernel = _box_kernel(self.robot, self.scene.padded())
-        out = self._box_kernel.run(np.asarray(qs, np.float32))["box_clearance"]
+        n = box_slots(len(self.scene.names))
+        kernel = self._box_kernels.get(n)
+        if kernel is None:
+            kernel = self._box_kernels[n] = _box_kernel(self.robot, self.scene.padded(n))
+        elif self._box_scene.get(n) != self._scene_version:
+            kernel.set_shared(*self.scene.padded(n))
+        self._box_scene[n] = self._scene_version
+        out = kernel.run(np.asarray(qs, np.float32))["box_clearance"]
         return out[:, : len(self.scene.names)]
 
     def lower_bounds(self, qs: np.ndarray) -> np.ndarray:
@@ -247,7 +253,7 @@ class TransitPlanner:
         from .bundle import capsule_ends_kernel
 
         assert self.scene is not None
-        ends = capsule_ends_kernel(self.robot).run(np.asarray(qs, np.float32))
+        ends = capsule_ends_kernel(self.robot, _small_chunk()).run(np.asarray(qs, np.float32))
         a, b = ends["a"].astype(np.float64), ends["b"].astype(np.float64)  # (n, nc, 3)
         c = self.scene.centers  # (nb, 3)
         d = b - a
@@ -777,6 +783,21 @@ def _clearance_kernel(robot: Robot):
     return ChunkedKernel(("arm_clearance", robot.model_hash, unroll), one, [], [(np.float32, (robot.nq,))], chunk)
 
 
+def _small_chunk() -> int | None:
+    """The chunk of the planner's capsule kernel: SMALL_CHUNK on the CPU, else the default."""
+    from .batching import backend
+
+    return SMALL_CHUNK if backend() == "cpu" else None
+
+
+def box_slots(nb: int) -> int:
+    """Boxes in the clearance program for a scene of `nb` boxes: EDGE_BOXES (the edges'
+    program: the same compilation) where they fit, else MAX_BOXES.  Each box's clearance is
+    computed apart, so a scene's figures do not depend on the program; a small scene (the
+    tunnel, clutter) pays for 4 boxes instead of 16."""
+    return EDGE_BOXES if nb <= EDGE_BOXES else MAX_BOXES
+
+
 def _box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
     """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared
     (inputs: one program for every scene of up to MAX_BOXES boxes)."""
@@ -784,7 +805,7 @@ def _box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
     from .kernels.collision import boxes_clearance
 
     unroll = backend() != "cpu"
-    chunk = 1 << 14 if backend() != "cpu" else 256  # CPU: calls hold a few hundred configurations
+    chunk = 1 << 14 if backend() != "cpu" else SMALL_CHUNK  # CPU: calls hold a few dozen configurations
 
     def one(centers, rots, halves, q):
         return boxes_clearance(robot.arm, q, centers, rots, halves, unroll)

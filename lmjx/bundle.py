@@ -582,21 +582,25 @@ _ENDS: dict[str, Any] = {}
 _ENDS_LOCK = threading.Lock()
 
 
-def capsule_ends_kernel(robot: Robot):
-    """jit(vmap(capsule_ends)) for `robot`, one per process (shared by the packing threads)."""
+def capsule_ends_kernel(robot: Robot, chunk: int | None = None):
+    """jit(vmap(capsule_ends)) for `robot`, one per process and chunk (shared by the packing
+    threads).  `chunk`: configurations per call (default: 32,768 on an accelerator, 1,024 on
+    the CPU, for the map's index; the planner's checks on the CPU hold a few dozen and ask
+    for a smaller one, `actions.SMALL_CHUNK`)."""
     from .kernels.collision import capsule_ends
 
+    if chunk is None:
+        chunk = 1 << 15 if backend() != "cpu" else 1024
     with _ENDS_LOCK:
-        if robot.model_hash not in _ENDS:
-            chunk = 1 << 15 if backend() != "cpu" else 1024
+        if (robot.model_hash, chunk) not in _ENDS:
 
             def one(q):
                 return capsule_ends(robot.arm, q)
 
-            _ENDS[robot.model_hash] = ChunkedKernel(
+            _ENDS[robot.model_hash, chunk] = ChunkedKernel(
                 ("capsule_ends", robot.model_hash), one, [], [(np.float32, (robot.nq,))], chunk
             )
-        return _ENDS[robot.model_hash]
+        return _ENDS[robot.model_hash, chunk]
 
 
 def arm_index_pairs(
