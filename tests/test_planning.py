@@ -847,3 +847,22 @@ def test_greedy_stuck_takes_the_candidate_that_leaves_the_most_options(robot, pl
     assert PlannerConfig().when_stuck == "best"
     with pytest.raises(Exception, match="when stuck"):
         PlannerConfig(when_stuck="wander").validate()
+
+
+def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(robot, plan_map):
+    """A scene of up to EDGE_BOXES boxes (the tunnel: the target and three fixed boxes) is
+    checked by the 4-box clearance program the edges use, not the MAX_BOXES one: the same
+    clearances, to float32 rounding, for configurations spanning several chunks."""
+    from lmjx.actions import EDGE_BOXES, MAX_BOXES, _box_kernel, box_slots
+
+    assert box_slots(EDGE_BOXES) == EDGE_BOXES and box_slots(EDGE_BOXES + 1) == MAX_BOXES
+    m = load_map(plan_map)
+    sc = scenario(2, tasks="hard")
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    tp.set_scene(sc, _observed(robot, sc, 5))
+    assert len(tp.scene.names) == EDGE_BOXES
+    qs = np.concatenate([m.edges.edge(e)["q"] for e in range(40)]).astype(np.float32)
+    small = tp.box_clearance(qs)
+    big = _box_kernel(robot, tp.scene.padded(MAX_BOXES)).run(qs)["box_clearance"][:, :EDGE_BOXES]
+    assert len(qs) > 256 and small.shape == big.shape
+    np.testing.assert_allclose(small, big, rtol=0, atol=1e-6)
