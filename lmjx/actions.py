@@ -800,7 +800,8 @@ def box_slots(nb: int) -> int:
 
 def _box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
     """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared
-    (inputs: one program for every scene of up to MAX_BOXES boxes)."""
+    (inputs: one program for every scene of as many boxes as `boxes` holds, padded; see
+    `box_slots`)."""
     from .batching import ChunkedKernel, backend
     from .kernels.collision import boxes_clearance
 

@@ -578,7 +578,7 @@ def pack_chunk(
 # States whose capsules are computed at a time when indexing (bounds the host memory a
 # chunk's index needs: about 100 MB for the Panda).
 INDEX_STATES = 1 << 16
-_ENDS: dict[str, Any] = {}
+_ENDS: dict[tuple[str, int], Any] = {}  # (model hash, chunk) -> its capsule-ends program
 _ENDS_LOCK = threading.Lock()
 
 
