@@ -165,8 +165,7 @@ class TransitPlanner:
         self.park = park_pose(robot, failure)
         self.batched = batched
         self._kernel = None
-        self._box_kernels: dict[int, Any] = {}  # box slots -> the scene's clearance program (`box_slots`)
-        self._box_scene: dict[int, Any] = {}  # box slots -> the scene version its shared arrays hold
+        self._box_kernels: dict[int, Any] = {}  # box slots -> the scenes' clearance program (`box_slots`)
         self._edge_kernel = None
         from .batching import backend
 
@@ -205,6 +204,9 @@ class TransitPlanner:
         self._scene_version = key
         self.acting = acting
         self._from_park.clear()  # park -> start depends on where the objects are
+        n = box_slots(len(self.scene.names))
+        if n in self._box_kernels:
+            self._box_kernels[n].set_shared(*self.scene.padded(n))
 
     def forget(self) -> None:
         """Drop what was kept about the scenes set so far (the transits through the park pose,
@@ -236,13 +238,9 @@ class TransitPlanner:
         scene (lmjx's box-clearance kernel, on the accelerator JAX uses)."""
         assert self.scene is not None, "set_scene first"
         n = box_slots(len(self.scene.names))
-        kernel = self._box_kernels.get(n)
-        if kernel is None:
-            kernel = self._box_kernels[n] = _box_kernel(self.robot, self.scene.padded(n))
-        elif self._box_scene.get(n) != self._scene_version:
-            kernel.set_shared(*self.scene.padded(n))
-        self._box_scene[n] = self._scene_version
-        out = kernel.run(np.asarray(qs, np.float32))["box_clearance"]
+        if n not in self._box_kernels:  # later scenes of n slots set theirs (`set_scene`)
+            self._box_kernels[n] = _box_kernel(self.robot, self.scene.padded(n))
+        out = self._box_kernels[n].run(np.asarray(qs, np.float32))["box_clearance"]
         return out[:, : len(self.scene.names)]
 
     def lower_bounds(self, qs: np.ndarray) -> np.ndarray:
@@ -253,7 +251,8 @@ class TransitPlanner:
         from .bundle import capsule_ends_kernel
 
         assert self.scene is not None
-        ends = capsule_ends_kernel(self.robot, _small_chunk()).run(np.asarray(qs, np.float32))
+        # (on the host: the CPU backend's bound, `_host_bounds`, in calls of a few dozen)
+        ends = capsule_ends_kernel(self.robot, SMALL_CHUNK).run(np.asarray(qs, np.float32))
         a, b = ends["a"].astype(np.float64), ends["b"].astype(np.float64)  # (n, nc, 3)
         c = self.scene.centers  # (nb, 3)
         d = b - a
@@ -781,13 +780,6 @@ def _clearance_kernel(robot: Robot):
         return arm_clearance(robot.arm, q, unroll)
 
     return ChunkedKernel(("arm_clearance", robot.model_hash, unroll), one, [], [(np.float32, (robot.nq,))], chunk)
-
-
-def _small_chunk() -> int | None:
-    """The chunk of the planner's capsule kernel: SMALL_CHUNK on the CPU, else the default."""
-    from .batching import backend
-
-    return SMALL_CHUNK if backend() == "cpu" else None
 
 
 def box_slots(nb: int) -> int:

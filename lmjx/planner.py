@@ -343,13 +343,10 @@ class Planner:
         self.trail: np.ndarray | None = None  # every joint target the arm followed in this trial (the way back)
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
-        """One decision, simulating on this planner's simulator; its planning time leaves out
-        what was compiled meanwhile (`StepRecord.compile_s`)."""
-        c0, t0 = compile_seconds(self.sim), time.perf_counter()
-        action, rec = drive(self.decide(obs, rng), self.sim)
-        rec.compile_s = compile_seconds(self.sim) - c0
-        rec.planning_s = max(0.0, time.perf_counter() - t0 - rec.compile_s)
-        return action, rec
+        """One decision, simulating on this planner's simulator, timed as a trial times it
+        (`_timed_decision`: its planning time leaves out what was compiled meanwhile,
+        `StepRecord.compile_s`)."""
+        return drive(self._timed_decision(obs, rng), self.sim)
 
     def decide(self, obs: Observation, rng: np.random.Generator) -> Generator[Simulate, Simulated, tuple]:
         """One decision: yields the simulations it needs; returns (action or None, record)."""
