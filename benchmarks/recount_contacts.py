@@ -21,6 +21,13 @@ a CPU evaluation, count once).  `--part K/N` replays every N-th trial (split acr
 processes; merge with `--merge OUT FILE...`).  GPU runs' transits were checked with the
 batched JAX kernel and are replayed with it (`TransitPlanner(batched=True)`), CPU runs' with
 C MuJoCo.
+
+`--combine RECOUNT` replays nothing: it counts every action of the results once, taking the
+replay's count where RECOUNT replayed the record unchanged and the recorded one otherwise
+(trials run since, or run again):
+
+    python benchmarks/recount_contacts.py --combine benchmarks/recount_1m_2026-11-26.json \\
+        docs/eval_{paper,hard}_{gpu,cpu}_1m/results.json --out combined.json
 """
 
 from __future__ import annotations
@@ -134,6 +141,32 @@ def summary(trials: list[dict]) -> dict:
     return {g: dict(c) for g, c in by.items()}
 
 
+def combine(replayed: list[dict], results: list[Path]) -> dict:
+    """Transit contacts over every trial of `results` once (a record in several files, e.g.
+    Random's, counts once): a trial the recount replayed (the same key and the same edges)
+    counts its actions replayed the same by the replay's rule and the others as recorded; a
+    trial it did not replay (run later, or run again since) counts as recorded."""
+    old = {tuple(t["key"]): t for t in replayed}
+    recs = {key(r): r for p in results for r in json.loads(p.read_text())}
+    c: dict[str, int] = defaultdict(int)
+    for k, r in recs.items():
+        t = old.get(k)
+        if t is not None and [s["edge"] for s in t["steps"]] != [s["edge"] for s in r["steps"]]:
+            t = None  # the trial ran again since the replay
+        c["trials_replayed" if t else "trials_as_recorded"] += 1
+        for i, st in enumerate(r["steps"]):
+            c["actions"] += 1
+            c["hit_fixed"] += bool(st["transit_hit_fixed"])
+            if t is not None and t["steps"][i]["same"]:
+                c["touch"] += bool(t["steps"][i]["transit_contacts"])
+                c["actions_replayed_same"] += 1
+            else:
+                c["touch"] += bool(st["transit_contacts"])
+    out = dict(c)
+    out["touch_share"] = round(c["touch"] / max(c["actions"], 1), 4)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("results", nargs="*", type=Path, help="results.json files")
@@ -141,7 +174,22 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True, help="JSON written: per trial and action, and the counts")
     ap.add_argument("--part", default="1/1", help="K/N: replay trials K, K+N, ... of the (deduplicated) records")
     ap.add_argument("--merge", nargs="+", type=Path, help="merge these outputs of parts into --out instead")
+    ap.add_argument(
+        "--combine",
+        type=Path,
+        metavar="RECOUNT",
+        help="count every action of the results.json files once: from this recount where it replayed "
+        "the same record, else as recorded; print the sums (and write them to --out)",
+    )
     args = ap.parse_args()
+    if args.combine:
+        try:
+            sums = combine(json.loads(args.combine.read_text())["trials"], args.results)
+        except (OSError, ValueError, KeyError, TypeError) as e:  # a missing or foreign file: one line
+            sys.exit(f"recount_contacts: --combine: {type(e).__name__}: {e}")
+        write_text_atomic(args.out, json.dumps(sums, indent=1) + "\n")
+        print(json.dumps(sums))
+        return
     if args.merge:  # each trial once (a part given twice counts once)
         merged = {tuple(t["key"]): t for p in args.merge for t in json.loads(p.read_text())["trials"]}
         trials = [merged[k] for k in sorted(merged)]
