@@ -4,7 +4,8 @@ decisions, not one.
 Decision states: for each failure, scenario and seed, the trial's start (arm parked, objects
 as laid out) and the states after 1 .. `depth - 1` random actions executed in that trial's
 "real" world (objects pushed about, arm elsewhere).  In each state the planner's candidates
-(edges over the target, in the trial's random order, with collision-free transits) are
+(edges over the target, in the trial's random order, with transits clear of the scene as
+observed, retreating along the last edge as the planner's do) are
 simulated by the simulator under test and by C MuJoCo's whole scene (the reference).  Per
 decision: the candidate each picks (lowest score), how much worse by the reference's score
 the tested pick is (the choice gap), and where the target ends in both.  The simulator under
@@ -63,15 +64,20 @@ def decision_states(
                 rng = np.random.default_rng(seed)
                 world = SimulatedRealWorld(robot, 10_000 + seed)
                 obs = world.reset(sample_layout(sc, 10_000 + seed), tp.park)
+                came_from, trail = None, obs.robot_q[None].copy()  # as `Planner.trial` keeps them
                 for k in range(depth):
                     target = obs.objects[0, :2]
                     edges = edges_over_target(mf.edges, mf.reach, target, float(sc.target.half[0]), 0.01)
-                    acts = tp.actions(mf.edges, rng.permutation(edges), obs.robot_q, candidates)
+                    tp.set_scene(sc, obs.objects)  # the planner's candidates: transits clear of the scene
+                    acts = tp.actions(mf.edges, rng.permutation(edges), obs.robot_q, candidates, came_from, trail)
                     if len(acts) < 2:
                         break
                     out.append(Decision(f, s, seed, k, obs, acts))
                     if k + 1 < depth:
-                        obs = world.execute(acts[int(rng.integers(len(acts)))])
+                        act = acts[int(rng.integers(len(acts)))]
+                        obs = world.execute(act)
+                        came_from = act.q[act.transit_steps :].astype(mf.edges.q_start.dtype)
+                        trail = np.concatenate([trail, act.q])
     return out
 
 

@@ -464,6 +464,30 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
         assert (nearest <= -ACT_DEPTH + 1e-4) if a.edge in acting else (nearest >= -ACT_DEPTH - 1e-4)
 
 
+def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan_map):
+    """The GPU simulator's agreement test (`lmjx.agreement.decision_states`) decides among
+    the planner's candidates: in every decision state (a trial's start, and after a random
+    push) each candidate's edge starts OBJECT_MARGIN clear of the objects where they were
+    observed, and from the park pose its whole transit does (C MuJoCo's mj_geomDistance)."""
+    from lmjx.actions import OBJECT_MARGIN
+    from lmjx.agreement import decision_states
+
+    m = load_map(plan_map)
+    decisions = decision_states(robot, {"case2": m}, (1,), 1, 2, 16, first_seed=5)
+    assert [d.depth for d in decisions] == [0, 1]
+    scene = build_scene(robot, scenario(1, tasks="hard"))
+    d_mj = mujoco.MjData(scene.model)
+    movable = [scene.model.geom(f"{b.name}_geom").id for b in scene.scenario.movable]
+    clearance = arm_clearance_fn(robot, scene, d_mj)
+    for dec in decisions:
+        assert len(dec.actions) >= 2
+        set_state(scene, d_mj, dec.observation.robot_q, dec.observation.objects)
+        for a in dec.actions:
+            assert clearance(a.q[a.transit_steps], movable) >= OBJECT_MARGIN - 1e-4
+            if dec.depth == 0:
+                assert min(clearance(q, movable) for q in a.q[: a.transit_steps : 2]) >= OBJECT_MARGIN - 1e-4
+
+
 def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     """An edge that pushed the target leaves the arm inside the scene's margins; the next
     actions' transits then begin with the same retreat back along that edge, on which the
