@@ -20,13 +20,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from agreement_run import setup
 
 from lmjx.agreement import decision_states
-from lmjx.errors import LmjxError
-from lmjx.evaluate import load_maps
 from lmjx.goalfield import GoalField
 from lmjx.planner import score, table_bounds
-from lmjx.robot import load_robot
 from lmjx.scenarios import scenario
 from lmjx.scene import build_scene
 from lmjx.simulate import CpuSimulator
@@ -42,15 +40,7 @@ def main() -> None:
     ap.add_argument("--candidate", type=int, help="the candidate to cut (default: the one that differs most)")
     ap.add_argument("--device", default=None, help="Warp device: cpu, or cuda:0 (default: the first CUDA device)")
     args = ap.parse_args()
-    try:
-        from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator
-    except ImportError as e:
-        sys.exit(f"agreement_miss: {e}")
-    robot = load_robot("panda")
-    try:
-        maps = load_maps(robot, (args.failure,), args.maps)
-    except LmjxError as e:
-        sys.exit(f"agreement_miss: {e}")
+    robot, maps, GpuSimConfig, GpuSimulator = setup("agreement_miss", (args.failure,), args.maps)
     found = decision_states(robot, maps, (args.scenario,), 1, args.depth + 1, 64, first_seed=args.seed)
     found = [d for d in found if d.depth == args.depth]
     if not found:

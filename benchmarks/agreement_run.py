@@ -33,21 +33,30 @@ MAP_SEED, FIRST_SEED = 2026, 500  # tests/test_simulate_gpu.py's, chosen before 
 PASS = {"decisions": 200, "same_or_within_1cm": 0.95, "median_end_diff_m": 1e-4}
 
 
+def setup(prog: str, failures: tuple[str, ...], maps_dir: Path) -> tuple:
+    """The Panda, its maps for `failures` and MuJoCo Warp's simulator (its config class and
+    its class), or a one-line exit naming `prog` (no warp-lang, a missing or foreign map)."""
+    try:
+        import warp  # noqa: F401  (MuJoCo Warp's runtime; lmjx.simulate_gpu imports it when it runs)
+
+        from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator
+    except ImportError as e:
+        sys.exit(f"{prog}: {e} (the GPU extra: pip install -e '.[gpu]', or warp-lang alone for --device cpu)")
+    robot = load_robot("panda")
+    try:
+        maps = load_maps(robot, failures, maps_dir)
+    except LmjxError as e:
+        sys.exit(f"{prog}: {e}")
+    return robot, maps, GpuSimConfig, GpuSimulator
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("maps", type=Path, help="folder of case1.h5 and case2.h5 (seed 2026)")
     ap.add_argument("--out", type=Path, required=True, help="the report (JSON)")
     ap.add_argument("--device", default=None, help="Warp device: cpu, or cuda:0 (default: the first CUDA device)")
     args = ap.parse_args()
-    try:
-        from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator
-    except ImportError as e:
-        sys.exit(f"agreement_run: {e}")
-    robot = load_robot("panda")
-    try:
-        maps = load_maps(robot, ("case1", "case2"), args.maps)
-    except LmjxError as e:
-        sys.exit(f"agreement_run: {e}")
+    robot, maps, GpuSimConfig, GpuSimulator = setup("agreement_run", ("case1", "case2"), args.maps)
     for f, m in maps.items():
         if m.edges.config.seed != MAP_SEED or m.reach.config.seed != MAP_SEED:
             sys.exit(f"agreement_run: {f}: not a map of seed {MAP_SEED} (the test's out-of-sample maps)")
