@@ -34,10 +34,12 @@ from .trial import DEFAULT_CANDIDATES, make_simulator
 LONG_REFERENCE = 1024  # C MuJoCo above this many candidates is timed once (it takes tens of seconds)
 
 
-def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int, seed: int):
+def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int, seed: int, planner_scene: bool = True):
     """Up to n Greedy candidates from the park pose for a scenario's seeded layout (repeated
     when fewer distinct edges pass over the target): the map, scenario, scene, objects,
-    transit planner and actions."""
+    transit planner and actions.  `planner_scene`: as the planner offers them (transits and
+    edge starts clear of the scene, edges that act on the target); False: checked against the
+    table and the arm only (actions for comparing simulators, which need not be offered)."""
     mf = load_map(map_path, robot)
     if mf.edges is None or mf.reach is None:
         raise ConfigError(f"{map_path} has no kinodynamic map (edges); build it with lmjx build-map")
@@ -46,6 +48,8 @@ def candidate_actions(robot: Robot, map_path: str, scenario_number: int, n: int,
     scene = build_scene(robot, sc)
     objects = object_qpos(scene, layout.poses)
     tp = TransitPlanner(robot, mf.failure)
+    if planner_scene:
+        tp.set_scene(sc, objects)
     edges = edges_over_target(mf.edges, mf.reach, objects[0, :2], float(sc.target.half[0]), 0.01)
     order = np.random.default_rng(seed).permutation(edges)
     acts = tp.actions(mf.edges, order, tp.park, n)

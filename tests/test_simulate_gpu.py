@@ -105,14 +105,15 @@ FIRST_SEED = 500
 
 
 def _same_results(a: np.ndarray, b: np.ndarray) -> None:
-    """Two runs of the same candidates agree: exactly enough on Warp's CPU device; on a GPU
-    up to its run-to-run spread (contacts are collected with atomics, so their order, and
+    """Two runs of the same candidates agree: to float32's last bits on Warp's CPU device
+    (atol 1e-5: a run there in another batch differed by 1.2e-6 in a quaternion, 2026-11-26);
+    on a GPU up to its run-to-run spread (contacts are collected with atomics, so their order, and
     the last bits of a solve, vary between launches): nearly every coordinate the same, and
     a candidate whose outcome turns on a contact chain within 2 cm (measured on an H100,
     2026-11-23: six default runs of the same two candidates ended up to 1.05 cm apart, the
     runs split between two outcomes; benchmarks/RESULTS.md, issue 18)."""
     if not CUDA:
-        np.testing.assert_allclose(a, b, atol=1e-6)
+        np.testing.assert_allclose(a, b, atol=1e-5)
         return
     d = np.abs(a[..., :3] - b[..., :3])
     assert np.median(d) < 1e-6 and d.max() < 2e-2, (np.median(d), d.max())
@@ -125,12 +126,14 @@ def _sim_config(**kw):
 
 @pytest.fixture(scope="module")
 def candidates(robot, small_map):
-    """The shared case-2 map's candidates for Scenario 3 (whole actions on a GPU, their last
-    0.2 s on Warp's CPU device, which is far slower)."""
+    """The shared case-2 map's actions over the target for Scenario 3, checked against the
+    table and the arm only (these tests compare simulators on the same actions, offered by
+    the planner or not: this small map offers none in the hard scenarios); whole actions on a
+    GPU, their last 0.2 s on Warp's CPU device, which is far slower."""
     from lmjx.bench_planner import candidate_actions
 
     n = 64 if CUDA else 4
-    _mf, sc, scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, n, 0)
+    _mf, sc, scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, n, 0, planner_scene=False)
     if not CUDA:
         acts = [replace(a, q=a.q[-(6 + 2 * i) :], qd=a.qd[-(6 + 2 * i) :]) for i, a in enumerate(acts)]
     return sc, scene, objects, tp.park, acts
