@@ -26,8 +26,7 @@ from lmjx.agreement import decision_states
 from lmjx.goalfield import GoalField
 from lmjx.planner import score, table_bounds
 from lmjx.scenarios import scenario
-from lmjx.scene import build_scene
-from lmjx.simulate import CpuSimulator
+from lmjx.trial import make_simulator
 
 
 def main() -> None:
@@ -40,18 +39,18 @@ def main() -> None:
     ap.add_argument("--candidate", type=int, help="the candidate to cut (default: the one that differs most)")
     ap.add_argument("--device", default=None, help="Warp device: cpu, or cuda:0 (default: the first CUDA device)")
     args = ap.parse_args()
-    robot, maps, GpuSimConfig, GpuSimulator = setup("agreement_miss", (args.failure,), args.maps)
+    robot, maps, GpuSimConfig = setup("agreement_miss", (args.failure,), args.maps)
     found = decision_states(robot, maps, (args.scenario,), 1, args.depth + 1, 64, first_seed=args.seed)
     found = [d for d in found if d.depth == args.depth]
     if not found:
         sys.exit("agreement_miss: no such decision (fewer than 2 candidates there, or the trial stopped earlier)")
     d = found[0]
     sc = scenario(args.scenario, robot.profile.task_scale, "hard")
-    ref_sim = CpuSimulator(build_scene(robot, sc))
+    ref_sim = make_simulator(robot, args.scenario, "cpu", "hard")
 
-    def warp(n: int) -> GpuSimulator:
-        cfg = GpuSimConfig(device=args.device, buckets=(n,)) if args.device else GpuSimConfig()
-        return GpuSimulator(build_scene(robot, sc, fuse_static=True), config=cfg)
+    def warp(n: int):  # MuJoCo Warp, one batch of n on another device
+        cfg = GpuSimConfig(device=args.device, buckets=(n,)) if args.device else None
+        return make_simulator(robot, args.scenario, "gpu", "hard", gpu_config=cfg)
 
     req = [(d.observation.robot_q, d.observation.objects, d.actions)]
     ref, new = ref_sim.simulate_many(req)[0], warp(len(d.actions)).simulate_many(req)[0]

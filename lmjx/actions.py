@@ -143,6 +143,13 @@ class Action:
         return len(self.q) * CONTROL_DT
 
 
+def after_executing(action: Action, trail: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """What a trial keeps of an action it executed, for the transits that follow: the edge's
+    states executed (`came_from`, in the map's precision `dtype`: a whole edge as it is
+    stored), and `trail` extended by every joint target the arm followed."""
+    return action.q[action.transit_steps :].astype(dtype), np.concatenate([trail, action.q])
+
+
 class TransitPlanner:
     """Builds collision-free joint-space transits for one failure.
 

@@ -30,7 +30,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from .actions import NO_ACTION_KEYS, Action, TransitPlanner
+from .actions import NO_ACTION_KEYS, Action, TransitPlanner, after_executing
 from .bundle import Bundle
 from .compiletime import compile_seconds, jax_compile_seconds
 from .errors import ConfigError
@@ -503,9 +503,7 @@ class Planner:
             t_before = obs.time
             before = obs.objects[0, :2].copy()
             obs = yield Execute(action)
-            # the edge's states it executed (in the map's precision: a whole edge as it is stored)
-            self.came_from = action.q[action.transit_steps :].astype(self.bundle.q_start.dtype)
-            self.trail = np.concatenate([self.trail, action.q])
+            self.came_from, self.trail = after_executing(action, self.trail, self.bundle.q_start.dtype)
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
                 self.futile[action.edge] = before

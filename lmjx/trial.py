@@ -50,15 +50,18 @@ def resolve_simulator(choice: str) -> tuple[str, str]:
     return choice, "asked for"
 
 
-def make_simulator(robot: Robot, scenario_number: int, backend: str = "cpu", tasks: str = "paper") -> Simulator:
+def make_simulator(
+    robot: Robot, scenario_number: int, backend: str = "cpu", tasks: str = "paper", gpu_config=None
+) -> Simulator:
     """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
     or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
-    whole scene).  `backend` is resolved already (see `resolve_simulator`)."""
+    whole scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device).  `backend` is
+    resolved already (see `resolve_simulator`)."""
     sc = scenario(scenario_number, robot.profile.task_scale, tasks)
     if backend == "gpu":
         from .simulate_gpu import GpuSimulator
 
-        return GpuSimulator(build_scene(robot, sc, fuse_static=True))
+        return GpuSimulator(build_scene(robot, sc, fuse_static=True), config=gpu_config)
     if backend == "cpu-near":
         return CpuSimulator(build_scene(robot, sc), k_objects=4, robot=robot)
     if backend != "cpu":

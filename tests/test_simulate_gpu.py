@@ -5,7 +5,7 @@ without it they are skipped (CI installs no GPU package); with it and no CUDA GP
 on Warp's CPU device on short actions; with a CUDA GPU they run there on whole actions, and
 the agreement over 200 Greedy decisions (the acceptance test of the GPU simulator) runs too,
 out of sample: on maps and decision seeds chosen before it was first run and never used
-before (`MAP_SEED`, `FIRST_SEED`; benchmarks/RESULTS.md).
+before (`lmjx.agreement.MAP_SEED`, `FIRST_SEED`; benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from lmjx.actions import park_pose
+from lmjx.agreement import MAP_SEED  # chosen before the agreement test's first run
 from lmjx.failure import parse_failure
 from lmjx.scenarios import sample_layout, scenario
 from lmjx.scene import build_scene, object_qpos, set_state
@@ -96,12 +97,6 @@ except ImportError:
     HAVE_WARP = False
 needs_warp = pytest.mark.skipif(not HAVE_WARP, reason="warp-lang is not installed (GPU extra: pip install -e '.[gpu]')")
 CUDA = HAVE_WARP and warp_problem() is None
-# The agreement test's maps and decisions, chosen before its first run (2026-11-23) and used
-# nowhere before: maps built with seed 2026 (the evaluation's and earlier agreement runs' maps
-# have seed 0); decisions from trial seeds 500-511 ("real" worlds and layouts 10,500-10,511;
-# the earlier runs: 0-11 and 10,000-10,011; the evaluation's trials: 1,000-3,014).
-MAP_SEED = 2026
-FIRST_SEED = 500
 
 
 def _same_results(a: np.ndarray, b: np.ndarray) -> None:
@@ -189,7 +184,7 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     before the first run (the in-sample figures were 94.4 % and 0.8 µm, H100, 2026-11-22).
     Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5 built with --seed 2026) or built
     here.  LMJX_TEST_REPORT: write the figures there (JSON)."""
-    from lmjx.agreement import decision_states, measure
+    from lmjx.agreement import out_of_sample
     from lmjx.evaluate import load_maps
     from lmjx.trial import make_simulator
 
@@ -206,14 +201,12 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     maps = load_maps(robot, ("case1", "case2"), folder)
     for f, m in maps.items():
         assert m.edges.config.seed == MAP_SEED and m.reach.config.seed == MAP_SEED, f"{f}: not the out-of-sample map"
-    decisions = decision_states(robot, maps, (1, 2, 3), 12, 3, 64, first_seed=FIRST_SEED)
-    report = measure(
+    report = out_of_sample(
         robot,
-        decisions,
+        maps,
         {s: make_simulator(robot, s, "gpu", "hard") for s in (1, 2, 3)},
         {s: make_simulator(robot, s, "cpu", "hard") for s in (1, 2, 3)},
     )
-    report |= {"map_seed": MAP_SEED, "first_seed": FIRST_SEED}
     if "LMJX_TEST_REPORT" in os.environ:
         Path(os.environ["LMJX_TEST_REPORT"]).write_text(json.dumps(report, indent=1))
     assert report["decisions"] >= 200
