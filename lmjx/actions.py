@@ -137,6 +137,7 @@ class Action:
     via_park: bool  # the transit is not the straight line (through the park pose, or the roadmap)
     route: str = "direct"  # the transit: "direct", "park" (through the park pose), "roadmap"; "escape+" any of them
     edge_states: int = -1  # the edge's states executed (fewer than its own where a fixed obstacle cuts it short)
+    edge_first: int = 0  # the edge's first state executed (`late_start`: its start in a fixed obstacle's margin)
 
     @property
     def duration(self) -> float:
@@ -188,8 +189,11 @@ class TransitPlanner:
         self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
-        self._from_park: dict[tuple[int, int], np.ndarray | None] = {}  # (bundle id, edge) -> park -> start
+        self._from_park: dict[tuple, np.ndarray | None] = {}  # (bundle id, edge, start) -> park -> start
         self.search = search  # where the straight transit and the park's are blocked, search a roadmap
+        # an edge whose start lies within FIXED_MARGIN of a fixed obstacle is entered at its first
+        # state clear of everything (`late_starts`), where that leaves a usable edge
+        self.late_start = False
         self._roadmaps: dict[int, Roadmap] = {}  # bundle id -> its roadmap
 
     def set_scene(self, sc, objects: np.ndarray, acting: bool = True) -> None:
@@ -370,14 +374,15 @@ class TransitPlanner:
         """(len(edges),) whether each edge has a usable part (`edge_prefixes` > 0)."""
         return self.edge_prefixes(bundle, edges) > 0
 
-    def edge_prefixes(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
+    def edge_prefixes(self, bundle: Bundle, edges: np.ndarray, first_state: np.ndarray | None = None) -> np.ndarray:
         """(len(edges),) how many of each edge's states an action executes: the states before
         the first that comes within FIXED_MARGIN of one of the scene's fixed obstacles (the
         real arm lags its targets: it may end nearer than planned, and its next transit starts
         there), or all of them; 0 (the edge is not offered) when that part has fewer than
         MIN_EDGE_STATES states or, with `acting`, never sweeps the arm ACT_DEPTH into the
         target's box (the scene's first box).  Without a scene every edge is whole
-        (`WHOLE`)."""
+        (`WHOLE`).  `first_state` (per edge): the edge is executed from that state on, and only
+        those states count (the prefix is still counted from the edge's own start)."""
         if self.scene is None or not len(edges):
             return np.full(len(edges), WHOLE)
         fixed = ~self.scene.movable
@@ -403,17 +408,46 @@ class TransitPlanner:
         first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
         owner = np.repeat(np.arange(len(qs)), lengths)
         k = np.arange(len(owner)) - first[owner]  # each state's index within its edge
+        begin = np.zeros(len(qs), int) if first_state is None else np.asarray(first_state, int)
+        counted = k >= begin[owner]
         prefix = lengths.copy()
         if fixed.any():
-            near = c[:, fixed].min(axis=1) < FIXED_MARGIN
+            near = (c[:, fixed].min(axis=1) < FIXED_MARGIN) & counted
             np.minimum.at(prefix, owner[near], k[near])
         if self.acting:
-            inside = k < prefix[owner]
+            inside = counted & (k < prefix[owner])
             nearest = np.full(len(qs), np.inf)
             np.minimum.at(nearest, owner[inside], c[inside, 0])
             prefix[nearest > -ACT_DEPTH] = 0
-        prefix[prefix < MIN_EDGE_STATES] = 0
+        prefix[prefix - begin < MIN_EDGE_STATES] = 0
         return prefix
+
+    def late_starts(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
+        """(len(edges),) for edges whose start is blocked: the first state of each that the arm
+        could be at (not blocked: clear of the table, the arm itself and every margin of the
+        scene) after a start within FIXED_MARGIN of a fixed obstacle; -1 where the start is
+        not within a fixed obstacle's margin (blocked by a movable object, the table or the
+        arm: such an edge is not entered late) or no later state is clear."""
+        out = np.full(len(edges), -1)
+        if self.scene is None or not len(edges) or self.scene.movable.all():
+            return out
+        starts = bundle.q_start[edges].astype(np.float64)
+        fixed = ~self.scene.movable
+        slack = self.scene_slacks(starts)
+        by_fixed = slack[:, fixed].min(axis=1) < 0
+        if not by_fixed.any():
+            return out
+        which = np.nonzero(by_fixed)[0]
+        qs = [bundle.edge(int(edges[i]), ("q",))["q"].astype(np.float64) for i in which]
+        q_all = np.concatenate(qs)
+        free = ~self.blocked(q_all)
+        lengths = np.array([len(q) for q in qs])
+        ends = np.cumsum(lengths)
+        for i, a, b in zip(which, ends - lengths, ends, strict=True):
+            hits = np.nonzero(free[a:b])[0]
+            if len(hits):
+                out[i] = int(hits[0])
+        return out
 
     def options(
         self,
@@ -611,14 +645,20 @@ class TransitPlanner:
             tally["tested"] += len(part)
             # the cheapest test first: most edges over a target start where an object stands
             free = ~self.blocked(bundle.q_start[part].astype(np.float64))
+            begin = np.zeros(len(part), int)
+            if self.late_start and not free.all():  # starts in a fixed obstacle's margin: entered later
+                begin[~free] = self.late_starts(bundle, part[~free])
+                free |= begin > 0
             tally["start_blocked"] += int(len(part) - free.sum())
-            part = part[free]
-            prefix = self.edge_prefixes(bundle, part) if len(part) else np.zeros(0, int)
+            part, begin = part[free], begin[free]
+            prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
             tally["edge_unusable"] += int((prefix <= 0).sum())
-            part, prefix = part[prefix > 0], prefix[prefix > 0]
+            part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
             if not len(part):
                 continue
             starts = bundle.q_start[part].astype(np.float64)
+            for j in np.nonzero(begin)[0]:
+                starts[j] = bundle.edge(int(part[j]), ("q",))["q"][begin[j]]
             ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
             stuck = [j for j in range(len(part)) if j not in ways]
             if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
@@ -631,7 +671,7 @@ class TransitPlanner:
             bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
             for j in ok:
                 route, transit = ways[j]
-                out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j])))
+                out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j]), int(begin[j])))
                 if len(out) == want:
                     break
             block = max(MIN_BLOCK, 2 * (want - len(out)))
@@ -654,7 +694,7 @@ class TransitPlanner:
         direct = self.segments(np.repeat(q_from[None], len(idx), axis=0), starts[idx])
         out = {j: ("direct", np.concatenate([lead, d])) for j, d in zip(idx, direct, strict=True) if d is not None}
         rest = [j for j in idx if j not in out]
-        for j, t in self._via_park(bundle, part, q_from, rest).items():
+        for j, t in self._via_park(bundle, part, starts, q_from, rest).items():
             out[j] = ("park", np.concatenate([lead, t]))
         rest = [j for j in rest if j not in out]
         if rest and self.search:
@@ -722,22 +762,25 @@ class TransitPlanner:
                     return np.concatenate([legs_a[i], leg])
         return None
 
-    def _via_park(self, bundle: Bundle, part: np.ndarray, q_now: np.ndarray, idx: list[int]) -> dict[int, np.ndarray]:
-        """Transits through the park pose for part[idx]: q_now -> park, then park -> start."""
+    def _via_park(
+        self, bundle: Bundle, part: np.ndarray, starts: np.ndarray, q_now: np.ndarray, idx: list[int]
+    ) -> dict[int, np.ndarray]:
+        """Transits through the park pose for part[idx]: q_now -> park, then park -> start
+        (`starts`: those of all of part; an edge entered late has its own)."""
         if not idx:
             return {}
         first = self._memo("_to_park", (q_now.tobytes(), self._scene_version), lambda: self.to_park(q_now))
         if first is None:
             return {}
-        key = id(bundle)
-        todo = [j for j in idx if (key, int(part[j])) not in self._from_park]
+        keys = {j: (id(bundle), int(part[j]), starts[j].tobytes()) for j in idx}
+        todo = [j for j in idx if keys[j] not in self._from_park]
         if todo:
-            starts = bundle.q_start[part[todo]].astype(np.float64)
-            for j, seg in zip(todo, self.segments(np.repeat(self.park[None], len(todo), axis=0), starts), strict=True):
-                self._from_park[(key, int(part[j]))] = seg
+            park = np.repeat(self.park[None], len(todo), axis=0)
+            for j, seg in zip(todo, self.segments(park, starts[todo]), strict=True):
+                self._from_park[keys[j]] = seg
         out = {}
         for j in idx:
-            second = self._from_park[(key, int(part[j]))]
+            second = self._from_park[keys[j]]
             if second is not None:
                 out[j] = np.concatenate([first, second])
         return out
@@ -758,11 +801,17 @@ def _spaced(start: np.ndarray, states: np.ndarray, most: int | None = None) -> l
 
 
 def _action(
-    bundle: Bundle, edge: int, q_now: np.ndarray, transit: np.ndarray, route: str, states_used: int = WHOLE
+    bundle: Bundle,
+    edge: int,
+    q_now: np.ndarray,
+    transit: np.ndarray,
+    route: str,
+    states_used: int = WHOLE,
+    first: int = 0,
 ) -> Action:
     states = bundle.edge(edge, ("q", "qd"))
-    q_edge = states["q"][:states_used].astype(np.float64)
-    qd_edge = states["qd"][:states_used].astype(np.float64)
+    q_edge = states["q"][first:states_used].astype(np.float64)
+    qd_edge = states["qd"][first:states_used].astype(np.float64)
     qd_transit = np.gradient(np.concatenate([q_now[None], transit]), CONTROL_DT, axis=0)[1:]
     return Action(
         edge=edge,
@@ -772,6 +821,7 @@ def _action(
         via_park=route != "direct",
         route=route,
         edge_states=len(q_edge),
+        edge_first=first,
     )
 
 

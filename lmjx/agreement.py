@@ -14,9 +14,14 @@ test sees all decisions of a scenario in one `simulate_many` call.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import statistics
 import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from multiprocessing import get_context
 
 import numpy as np
 
@@ -63,34 +68,96 @@ def decision_states(
     depth: int,
     candidates: int,
     first_seed: int = 0,
+    workers: int = 1,
 ) -> list[Decision]:
     """Decisions with their candidate actions (see the module docstring), for trial seeds
     `first_seed` .. `first_seed + seeds - 1` (seed s: layout and "real" world 10,000 + s,
-    the planner's random order from s)."""
+    the planner's random order from s).  Each (failure, scenario, seed) is a chain of its
+    own: with `workers` > 1 the chains run in that many processes (spawned, JAX on the CPU;
+    the same decisions, in the same order, as one process makes: building them is the
+    agreement test's longest part, about 16 s a decision on one core)."""
+    chains = [(f, s, seed) for f in maps for s in scenarios for seed in range(first_seed, first_seed + seeds)]
+    if workers <= 1 or len(chains) <= 1:
+        planners: dict[str, TransitPlanner] = {}
+        return [d for c in chains for d in _chain(robot, maps, planners, *c, depth, candidates)]
+    paths = {f: str(m.path) for f, m in maps.items()}
+    jobs = [(robot.key, paths, *c, depth, candidates) for c in chains]
+    with _cpu_jax(), ProcessPoolExecutor(min(workers, len(chains)), mp_context=get_context("spawn")) as pool:
+        return [d for found in pool.map(_chain_job, jobs) for d in found]
+
+
+def _chain(
+    robot: Robot,
+    maps: dict[str, MapFile],
+    planners: dict[str, TransitPlanner],
+    f: str,
+    s: int,
+    seed: int,
+    depth: int,
+    candidates: int,
+) -> list[Decision]:
+    """The decisions of one trial seed (`decision_states`); `planners`: one TransitPlanner per
+    failure, made here when missing."""
+    mf = maps[f]
+    assert mf.edges is not None and mf.reach is not None
+    if f not in planners:
+        planners[f] = TransitPlanner(robot, mf.failure, batched=True)
+    tp = planners[f]
+    sc = scenario(s, robot.profile.task_scale, "hard")
+    rng = np.random.default_rng(seed)
+    world = SimulatedRealWorld(robot, 10_000 + seed)
+    obs = world.reset(sample_layout(sc, 10_000 + seed), tp.park)
+    came_from, trail = None, obs.robot_q[None].copy()  # as `Planner.trial` keeps them
     out = []
-    for f, mf in maps.items():
-        assert mf.edges is not None and mf.reach is not None
-        tp = TransitPlanner(robot, mf.failure, batched=True)
-        for s in scenarios:
-            sc = scenario(s, robot.profile.task_scale, "hard")
-            for seed in range(first_seed, first_seed + seeds):
-                rng = np.random.default_rng(seed)
-                world = SimulatedRealWorld(robot, 10_000 + seed)
-                obs = world.reset(sample_layout(sc, 10_000 + seed), tp.park)
-                came_from, trail = None, obs.robot_q[None].copy()  # as `Planner.trial` keeps them
-                for k in range(depth):
-                    target = obs.objects[0, :2]
-                    edges = edges_over_target(mf.edges, mf.reach, target, float(sc.target.half[0]), 0.01)
-                    tp.set_scene(sc, obs.objects)  # the planner's candidates: transits clear of the scene
-                    acts = tp.actions(mf.edges, rng.permutation(edges), obs.robot_q, candidates, came_from, trail)
-                    if len(acts) < 2:
-                        break
-                    out.append(Decision(f, s, seed, k, obs, acts))
-                    if k + 1 < depth:
-                        act = acts[int(rng.integers(len(acts)))]
-                        obs = world.execute(act)
-                        came_from, trail = after_executing(act, trail, mf.edges.q_start.dtype)
+    for k in range(depth):
+        target = obs.objects[0, :2]
+        edges = edges_over_target(mf.edges, mf.reach, target, float(sc.target.half[0]), 0.01)
+        tp.set_scene(sc, obs.objects)  # the planner's candidates: transits clear of the scene
+        acts = tp.actions(mf.edges, rng.permutation(edges), obs.robot_q, candidates, came_from, trail)
+        if len(acts) < 2:
+            break
+        out.append(Decision(f, s, seed, k, obs, acts))
+        if k + 1 < depth:
+            act = acts[int(rng.integers(len(acts)))]
+            obs = world.execute(act)
+            came_from, trail = after_executing(act, trail, mf.edges.q_start.dtype)
     return out
+
+
+_WORKER: dict = {}  # a worker process's robot, maps and planners (`_chain_job`)
+
+
+def _chain_job(job: tuple) -> list[Decision]:
+    """`_chain` in a worker process: the robot and the maps loaded once per process."""
+    from .mapfile import load_map
+    from .robot import as_robot
+
+    key, paths, f, s, seed, depth, candidates = job
+    if _WORKER.get("key") != (key, tuple(sorted(paths.items()))):
+        robot = as_robot(key)
+        maps = {g: load_map(p, robot) for g, p in paths.items()}
+        _WORKER.clear()
+        _WORKER.update(key=(key, tuple(sorted(paths.items()))), robot=robot, maps=maps, planners={})
+    return _chain(_WORKER["robot"], _WORKER["maps"], _WORKER["planners"], f, s, seed, depth, candidates)
+
+
+@contextlib.contextmanager
+def _cpu_jax() -> Iterator[None]:
+    """Processes started inside this block run JAX on the CPU, one thread each (a GPU is the
+    simulators' and each spawned process would otherwise take most of its memory)."""
+    keep = {k: os.environ.get(k) for k in ("JAX_PLATFORMS", "XLA_FLAGS")}
+    os.environ["JAX_PLATFORMS"] = "cpu"
+    os.environ["XLA_FLAGS"] = " ".join(
+        x for x in (keep["XLA_FLAGS"], "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1") if x
+    )
+    try:
+        yield
+    finally:
+        for k, v in keep.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def measure(
@@ -159,16 +226,20 @@ def out_of_sample(
     tested: dict[int, Simulator],
     reference: dict[int, Simulator],
     seeds: int = OUT_OF_SAMPLE_SEEDS,
+    workers: int | None = None,
 ) -> dict:
     """The agreement test's measurement: its decisions (trial seeds FIRST_SEED onward, the three
-    scenarios, depth 3, up to 64 candidates) measured by `measure`, with the seeds and the
-    seconds the decisions took."""
+    scenarios, depth 3, up to 64 candidates; built in `workers` processes, default one per
+    usable core) measured by `measure`, with the seeds and the seconds the decisions took."""
+    from .cores import usable_cores
+
+    workers = usable_cores() if workers is None else workers
     t0 = time.perf_counter()
-    decisions = decision_states(robot, maps, (1, 2, 3), seeds, 3, 64, first_seed=FIRST_SEED)
+    decisions = decision_states(robot, maps, (1, 2, 3), seeds, 3, 64, first_seed=FIRST_SEED, workers=workers)
     took = time.perf_counter() - t0
     report = measure(robot, decisions, tested, reference)
     report["seconds"]["decisions"] = took
-    return report | {"map_seed": MAP_SEED, "first_seed": FIRST_SEED, "seeds": seeds}
+    return report | {"map_seed": MAP_SEED, "first_seed": FIRST_SEED, "seeds": seeds, "decision_workers": workers}
 
 
 def passes(report: dict) -> bool:

@@ -244,11 +244,14 @@ def planner_config(
     candidates: int | None = None,
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
+    late_start: bool = False,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
     asm_settings="paper" the ASMs as the paper states them, `when_stuck` Greedy's rule when
-    no candidate is predicted to improve (`PlannerConfig.when_stuck`)."""
+    no candidate is predicted to improve (`PlannerConfig.when_stuck`), `late_start` edges whose
+    start lies in a fixed obstacle's margin entered at their first clear state
+    (`PlannerConfig.late_start`)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -256,6 +259,7 @@ def planner_config(
         max_actions=max_actions,
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
         when_stuck=when_stuck,
+        late_start=late_start,
     )
     config.validate()
     return config.paper() if asm_settings == "paper" else config
@@ -271,6 +275,7 @@ def plan_task(
     candidates: int | None = None,
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
+    late_start: bool = False,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -286,6 +291,8 @@ def plan_task(
     (default 1,024 with the GPU simulator, 32 on the CPU); `asm_settings`: "lmjx" or
     "paper" (the ASMs as the paper states them); `when_stuck`: Greedy's rule when no
     candidate is predicted to improve ("best" or "options", `PlannerConfig.when_stuck`);
+    `late_start`: offer edges whose start lies in a fixed obstacle's margin from their first
+    clear state (`PlannerConfig.late_start`);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
@@ -336,7 +343,7 @@ def plan_task(
         sim_name, why = resolve_simulator(sim)
         if say is not None:
             say(f"simulator {sim_name} ({why})")
-    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck)
+    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start)
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None

@@ -75,6 +75,9 @@ class PlannerConfig:
     # among the candidates that keep every object on the table, the one whose predicted state
     # leaves the most edges to offer (starts clear, acting on the target: `TransitPlanner.options`),
     # the best predicted of those within OPTIONS_NEAR of the most
+    late_start: bool = False  # an edge whose start lies within a fixed obstacle's margin is offered
+    # from its first state clear of the scene (`TransitPlanner.late_starts`), where that part
+    # still acts on the target; off: such an edge is not offered
 
     __repr__ = config_repr
 
@@ -108,6 +111,7 @@ class PlannerConfig:
             "lazy_tries": self.lazy_tries if self.lazy_cap else None,
             "greedy_subset": greedy,
             "when_stuck": self.when_stuck,
+            "late_start": self.late_start,
         }
 
 
@@ -127,6 +131,7 @@ class StepRecord:
     transit_left: tuple[str, ...] = ()
     transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
+    edge_first: int = 0  # the edge's first state executed (`Action.edge_first`: > 0 only with late_start)
     compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.compiletime`)
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
@@ -156,6 +161,7 @@ class StepRecord:
             "transit_left": list(self.transit_left),
             "transit_route": self.transit_route,
             "edge_states": self.edge_states,
+            **({"edge_first": self.edge_first} if self.edge_first else {}),
             **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
             **({"stuck": self.stuck} if self.stuck is not None else {}),
@@ -335,6 +341,7 @@ class Planner:
         batched = bool(getattr(simulator, "prefers_batches", False))
         self.batched = batched
         self.transits = transits or TransitPlanner(robot, failure, batched=batched)
+        self.transits.late_start = config.late_start  # (trials sharing a TransitPlanner share a config)
         self.field = GoalField(sc, *table_bounds(robot)) if config.path_score else _Straight(sc)
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
@@ -515,6 +522,7 @@ class Planner:
             rec.transit_left = obs.transit_left
             rec.transit_route = action.route
             rec.edge_states = action.edge_states
+            rec.edge_first = action.edge_first
             steps.append(rec)
             if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
                 reason = "target off the table"

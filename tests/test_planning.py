@@ -211,10 +211,12 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert {"success", "actions", "planning_s", "execution_s", "end", "asm_settings", "steps"} <= set(out)
     assert out["asm_settings"]["futile_filter"] is True and out["tasks"] == "paper"
     paper = json.loads(cli("plan", "--map", small_map, "--scenario", "2", "--asm", "lazy", "--asm-settings", "paper",
-                           "--when-stuck", "options", "--max-actions", "1", "--json").ok().stdout)  # fmt: skip
+                           "--when-stuck", "options", "--late-start", "--max-actions", "1",
+                           "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
-            "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options"}  # fmt: skip
-    assert out["asm_settings"]["when_stuck"] == "best"
+            "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options",
+            "late_start": True}  # fmt: skip
+    assert out["asm_settings"]["when_stuck"] == "best" and out["asm_settings"]["late_start"] is False
     assert paper["asm_settings"] == want
     for args, message in (
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
@@ -462,6 +464,54 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     for a in acts:
         nearest = min(clearance(q, movable[:1]) for q in a.q[a.transit_steps :])
         assert (nearest <= -ACT_DEPTH + 1e-4) if a.edge in acting else (nearest >= -ACT_DEPTH - 1e-4)
+
+
+def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, plan_map):
+    """`late_start` (an option, off by default): an edge over the target whose start lies
+    within FIXED_MARGIN of a fixed obstacle (the tunnel's wall or roof) is offered from its
+    first state that keeps every margin (C MuJoCo's mj_geomDistance, C MuJoCo's collision
+    test for the table and the arm itself), every state before it fails one; the executed part
+    is the edge's own states from there, FIXED_MARGIN clear of the fixed obstacles, and the
+    transit keeps every margin.  Edges offered without the option are offered alike with it;
+    no edge whose start is blocked by a movable object alone is entered late."""
+    from lmjx.actions import FIXED_MARGIN, MIN_EDGE_STATES, OBJECT_MARGIN
+    from lmjx.planner import edges_over_target
+
+    m = load_map(plan_map)
+    sc = scenario(2, tasks="hard")
+    scene = build_scene(robot, sc)
+    model, d = scene.model, mujoco.MjData(scene.model)
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    set_state(scene, d, tp.park, object_qpos(scene, sample_layout(sc, 5).poses))
+    mujoco.mj_kinematics(model, d)
+    objects = read_objects(scene, d)
+    tp.set_scene(sc, objects, acting=False)  # (on this small map no late part acts on the target)
+    edges = edges_over_target(m.edges, m.reach, objects[0, :2], float(sc.target.half[0]), 0.01)
+    plain = tp.actions(m.edges, edges, tp.park, len(edges))
+    tp.late_start = True
+    acts = tp.actions(m.edges, edges, tp.park, len(edges))
+    late = [a for a in acts if a.edge_first > 0]
+    assert len(late) >= 10 and len(acts) == len(plain) + len(late)  # 23 of 29 on this map
+    same = {a.edge: a for a in acts if a.edge_first == 0}
+    assert set(same) == {a.edge for a in plain}
+    assert all(np.array_equal(same[a.edge].q, a.q) for a in plain)
+    movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
+    fixed = [model.geom(b.name).id for b in sc.fixed]
+    clearance = arm_clearance_fn(robot, scene, d)
+
+    def clear(q, tol: float) -> bool:  # every margin kept, give or take tol (the kernels' float32)
+        return (clearance(q, movable) >= OBJECT_MARGIN + tol and clearance(q, fixed) >= FIXED_MARGIN + tol
+                and not tp.colliding(q))  # fmt: skip
+
+    for a in late:
+        whole = m.edges.edge(a.edge)["q"].astype(np.float64)
+        assert clearance(whole[0], fixed) < FIXED_MARGIN + 1e-4  # its own start: in a fixed obstacle's margin
+        assert clear(whole[a.edge_first], -1e-4)
+        assert not any(clear(q, 1e-4) for q in whole[: a.edge_first])  # the first such state
+        assert a.edge_states >= MIN_EDGE_STATES
+        np.testing.assert_array_equal(a.q[a.transit_steps :], whole[a.edge_first : a.edge_first + a.edge_states])
+        assert all(clearance(q, fixed) >= FIXED_MARGIN - 1e-4 for q in a.q[a.transit_steps :: 3])
+        assert all(clear(q, -1e-4) for q in a.q[: a.transit_steps : 2])
 
 
 def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan_map):

@@ -63,6 +63,13 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "the most edges to offer (starts clear of the scene, acting on the target), the best predicted among "
         "those with at least 80%% of the most (measured worse on the hard set's case-2 tunnel: docs/EVALUATION.md)",
     )
+    p.add_argument(
+        "--late-start",
+        action="store_true",
+        help="offer an edge whose start lies within 2 cm of a fixed obstacle (the tunnel's wall or roof) from its "
+        "first state clear of the scene, where the rest still acts on the target (default: such an edge is not "
+        "offered; a lever for the tunnel, docs/EVALUATION.md)",
+    )
     _add_sim(p)
 
 
@@ -78,7 +85,9 @@ def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
 def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
     from ..api import planner_config
 
-    return planner_config(asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck)
+    return planner_config(
+        asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start
+    )
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -110,7 +119,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
-        candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck, sim=args.sim,
+        candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck,
+        late_start=args.late_start, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
