@@ -71,6 +71,7 @@ MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
 MIN_EDGE_STATES = 5  # an edge cut short at a fixed obstacle keeps at least this many states (0.1 s)
+LATE_TRIES = 4  # `late_start`: edges with a blocked start tried per action still wanted
 SMALL_CHUNK = 64  # configurations per call of the planner's clearance programs on the CPU
 # (a call holds a median of about 40: a chunk of 256 cost 5.3 ms for 40 where 64 costs 1.1 ms)
 OPTIONS_SAMPLE = 256  # `options`: edges whose starts it tests
@@ -191,8 +192,9 @@ class TransitPlanner:
         self.acting = False
         self._from_park: dict[tuple, np.ndarray | None] = {}  # (bundle id, edge, start) -> park -> start
         self.search = search  # where the straight transit and the park's are blocked, search a roadmap
-        # an edge whose start lies within FIXED_MARGIN of a fixed obstacle is entered at its first
-        # state clear of everything (`late_starts`), where that leaves a usable edge
+        # where the edges with clear starts give fewer actions than wanted, edges whose start lies
+        # within FIXED_MARGIN of a fixed obstacle are entered at their first state clear of
+        # everything (`late_starts`; at most LATE_TRIES of them per action still wanted)
         self.late_start = False
         self._roadmaps: dict[int, Roadmap] = {}  # bundle id -> its roadmap
 
@@ -638,43 +640,52 @@ class TransitPlanner:
             if back is not None:
                 lead, q_now = back, back[-1]  # transits are planned from the retreat's end
         block = max(want, MIN_BLOCK)
-        i = 0
-        while len(out) < want and i < len(edges):
-            part = np.asarray(edges[i : i + block])
-            i += len(part)
-            tally["tested"] += len(part)
-            # the cheapest test first: most edges over a target start where an object stands
-            free = ~self.blocked(bundle.q_start[part].astype(np.float64))
-            begin = np.zeros(len(part), int)
-            if self.late_start and not free.all():  # starts in a fixed obstacle's margin: entered later
-                begin[~free] = self.late_starts(bundle, part[~free])
-                free |= begin > 0
-            tally["start_blocked"] += int(len(part) - free.sum())
-            part, begin = part[free], begin[free]
-            prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
-            tally["edge_unusable"] += int((prefix <= 0).sum())
-            part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
-            if not len(part):
-                continue
-            starts = bundle.q_start[part].astype(np.float64)
-            for j in np.nonzero(begin)[0]:
-                starts[j] = bundle.edge(int(part[j]), ("q",))["q"][begin[j]]
-            ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
-            stuck = [j for j in range(len(part)) if j not in ways]
-            if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
-                esc = self._memo("_escape", (q_now.tobytes(), self._scene_version), lambda: self.escape(q_now))
-                if esc is not None:
-                    for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc, trail).items():
-                        ways[j] = ("escape+" + route, transit)
-            ok = sorted(ways)
-            tally["no_transit"] += len(part) - len(ok)
-            bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
-            for j in ok:
-                route, transit = ways[j]
-                out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j]), int(begin[j])))
-                if len(out) == want:
-                    break
-            block = max(MIN_BLOCK, 2 * (want - len(out)))
+        blocked_starts: list[np.ndarray] = []  # for `late_start`'s second pass
+        for late in (False, True):
+            if late and not (self.late_start and len(out) < want and blocked_starts):
+                break
+            # (at most LATE_TRIES per action wanted: a late start costs a test of every state of the edge)
+            pool = np.concatenate(blocked_starts)[: LATE_TRIES * (want - len(out))] if late else edges
+            i = 0
+            while len(out) < want and i < len(pool):
+                part = np.asarray(pool[i : i + block])
+                i += len(part)
+                if not late:
+                    tally["tested"] += len(part)
+                    # the cheapest test first: most edges over a target start where an object stands
+                    free = ~self.blocked(bundle.q_start[part].astype(np.float64))
+                    tally["start_blocked"] += int(len(part) - free.sum())
+                    blocked_starts.append(part[~free])
+                    begin = np.zeros(len(part), int)
+                else:  # too few actions from clear starts: edges entered after a start in a fixed obstacle's margin
+                    begin = self.late_starts(bundle, part)
+                    free = begin > 0
+                    tally["start_blocked"] -= int(free.sum())
+                part, begin = part[free], begin[free]
+                prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
+                tally["edge_unusable"] += int((prefix <= 0).sum())
+                part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
+                if not len(part):
+                    continue
+                starts = bundle.q_start[part].astype(np.float64)
+                for j in np.nonzero(begin)[0]:
+                    starts[j] = bundle.edge(int(part[j]), ("q",))["q"][begin[j]]
+                ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
+                stuck = [j for j in range(len(part)) if j not in ways]
+                if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
+                    esc = self._memo("_escape", (q_now.tobytes(), self._scene_version), lambda: self.escape(q_now))
+                    if esc is not None:
+                        for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc, trail).items():
+                            ways[j] = ("escape+" + route, transit)
+                ok = sorted(ways)
+                tally["no_transit"] += len(part) - len(ok)
+                bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
+                for j in ok:
+                    route, transit = ways[j]
+                    out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j]), int(begin[j])))
+                    if len(out) == want:
+                        break
+                block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
 
     def _ways(

@@ -75,9 +75,10 @@ class PlannerConfig:
     # among the candidates that keep every object on the table, the one whose predicted state
     # leaves the most edges to offer (starts clear, acting on the target: `TransitPlanner.options`),
     # the best predicted of those within OPTIONS_NEAR of the most
-    late_start: bool = False  # an edge whose start lies within a fixed obstacle's margin is offered
-    # from its first state clear of the scene (`TransitPlanner.late_starts`), where that part
-    # still acts on the target; off: such an edge is not offered
+    late_start: bool = False  # where the edges with clear starts give fewer candidates than
+    # wanted, an edge whose start lies within a fixed obstacle's margin is offered from its first
+    # state clear of the scene (`TransitPlanner.late_starts`), where that part still acts on the
+    # target; off: such an edge is not offered
 
     __repr__ = config_repr
 

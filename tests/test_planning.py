@@ -467,14 +467,15 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
 
 
 def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, plan_map):
-    """`late_start` (an option, off by default): an edge over the target whose start lies
-    within FIXED_MARGIN of a fixed obstacle (the tunnel's wall or roof) is offered from its
-    first state that keeps every margin (C MuJoCo's mj_geomDistance, C MuJoCo's collision
+    """`late_start` (an option, off by default): where the edges with clear starts give fewer
+    actions than wanted, an edge over the target whose start lies within FIXED_MARGIN of a
+    fixed obstacle (the tunnel's wall or roof) is offered from its first state that keeps
+    every margin (C MuJoCo's mj_geomDistance, C MuJoCo's collision
     test for the table and the arm itself), every state before it fails one; the executed part
     is the edge's own states from there, FIXED_MARGIN clear of the fixed obstacles, and the
     transit keeps every margin.  Edges offered without the option are offered alike with it;
     no edge whose start is blocked by a movable object alone is entered late."""
-    from lmjx.actions import FIXED_MARGIN, MIN_EDGE_STATES, OBJECT_MARGIN
+    from lmjx.actions import FIXED_MARGIN, LATE_TRIES, MIN_EDGE_STATES, OBJECT_MARGIN
     from lmjx.planner import edges_over_target
 
     m = load_map(plan_map)
@@ -495,6 +496,11 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
     same = {a.edge: a for a in acts if a.edge_first == 0}
     assert set(same) == {a.edge for a in plain}
     assert all(np.array_equal(same[a.edge].q, a.q) for a in plain)
+    # only where the clear starts fall short, and at most LATE_TRIES edges tried per action missing
+    assert [a.edge for a in tp.actions(m.edges, edges, tp.park, len(plain))] == [a.edge for a in plain]
+    few = [a.edge for a in tp.actions(m.edges, edges, tp.park, len(plain) + 10) if a.edge_first > 0]
+    tried = set(edges[tp.blocked(m.edges.q_start[edges].astype(np.float64))][: LATE_TRIES * 10].tolist())
+    assert 0 < len(few) <= 10 and few == [a.edge for a in late if a.edge in tried][:10]
     movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
     fixed = [model.geom(b.name).id for b in sc.fixed]
     clearance = arm_clearance_fn(robot, scene, d)

@@ -66,9 +66,10 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--late-start",
         action="store_true",
-        help="offer an edge whose start lies within 2 cm of a fixed obstacle (the tunnel's wall or roof) from its "
-        "first state clear of the scene, where the rest still acts on the target (default: such an edge is not "
-        "offered; a lever for the tunnel, docs/EVALUATION.md)",
+        help="where the edges with clear starts give fewer candidates than wanted, offer edges whose start lies "
+        "within 2 cm of a fixed obstacle (the tunnel's wall or roof) from their first state clear of the scene, "
+        "where the rest still acts on the target (default: such an edge is not offered; a lever for the tunnel, "
+        "docs/EVALUATION.md)",
     )
     _add_sim(p)
 
