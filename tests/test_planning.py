@@ -544,6 +544,22 @@ def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan
                 assert min(clearance(q, movable) for q in a.q[: a.transit_steps : 2]) >= OBJECT_MARGIN - 1e-4
 
 
+def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map):
+    """`decision_states` with workers (spawned processes, JAX on the CPU in each: how the
+    agreement test builds its 200-odd decisions on a GPU machine) makes the same decisions,
+    in the same order, with the same candidates' joint targets as one process."""
+    from lmjx.agreement import decision_states
+
+    m = load_map(plan_map)
+    one = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5)
+    two = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5, workers=2)
+    assert [(d.seed, d.depth) for d in one] == [(d.seed, d.depth) for d in two] == [(5, 0), (6, 0)]
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a.observation.objects, b.observation.objects)
+        assert [x.edge for x in a.actions] == [x.edge for x in b.actions]
+        assert all(np.array_equal(x.q, y.q) for x, y in zip(a.actions, b.actions, strict=True))
+
+
 def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     """An edge that pushed the target leaves the arm inside the scene's margins; the next
     actions' transits then begin with the same retreat back along that edge, on which the
