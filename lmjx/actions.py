@@ -13,7 +13,9 @@ straight way up is blocked, by a dog-leg (some joints to their park values first
 rest; `to_park`), whose first leg may pass movable objects at `JAM_MARGIN` when nothing
 keeps the full margin (the arm boxed in by objects a push has moved).  When that too is
 blocked, the action is not offered.  An edge whose start lies within the margins of
-an object is not offered either.  An edge whose states come within `FIXED_MARGIN` of a fixed
+an object is not offered either (with `late_start`, an option, an edge whose start lies in a
+fixed obstacle's margin may be entered at its first clear state where the clear starts give
+too few actions: `late_starts`).  An edge whose states come within `FIXED_MARGIN` of a fixed
 obstacle is executed only up to its last state before that (`edge_prefixes`; an arm pushing
 the target into the tunnel stops short of the wall instead of giving up the push), and not
 offered when fewer than `MIN_EDGE_STATES` states are left; nor, once a scene is set, is an
@@ -622,7 +624,10 @@ class TransitPlanner:
         margins directly, never going deeper.  `trail`: every joint target the arm followed
         so far (oldest first); the roadmap may take the way back along it (`trail_back`).
         Where the arm stands inside the margins with no retreat, an edge with no transit from
-        there is offered after the `escape` ("escape+" routes), in its place in the order."""
+        there is offered after the `escape` ("escape+" routes), in its place in the order.
+        With `late_start`, where all of `edges` give fewer than `want` actions, a second pass
+        enters edges whose start was blocked at their `late_starts` (at most LATE_TRIES of
+        them, in order, per action still wanted); their actions come after the others."""
         out: list[Action] = []
         tally = dict.fromkeys(NO_ACTION_KEYS, 0)  # why edges were not offered (`last_tally`)
         self.last_tally = tally
