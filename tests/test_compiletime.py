@@ -71,9 +71,11 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
     wall = time.perf_counter() - t0
     _, rec = done.value.value
     jax_part = rec.compile_s - sim.capture_seconds
-    # JAX's events (lowering, compiling) account for much of the jitted function's first
-    # call, and every second of the decision is either planning or compiling
-    assert jax_part >= 0.3 * first_call["s"]
+    # JAX's events (lowering, compiling) account for a good part of the jitted function's
+    # first call (alone 52-67 %; 27 % in a fresh clone's suite, where the compile-ahead
+    # thread holds the GIL during the call's tracing: 0 were they not counted), and every
+    # second of the decision is either planning or compiling
+    assert jax_part >= 0.1 * first_call["s"]
     assert rec.planning_s + rec.compile_s == pytest.approx(wall, abs=0.05)
     assert rec.planning_s < wall - SIM_COMPILE
     assert rec.summary()["compile_s"] == round(rec.compile_s, 3)
