@@ -660,7 +660,8 @@ class TransitPlanner:
                     # the cheapest test first: most edges over a target start where an object stands
                     free = ~self.blocked(bundle.q_start[part].astype(np.float64))
                     tally["start_blocked"] += int(len(part) - free.sum())
-                    blocked_starts.append(part[~free])
+                    if self.late_start:
+                        blocked_starts.append(part[~free])
                     begin = np.zeros(len(part), int)
                 else:  # too few actions from clear starts: edges entered after a start in a fixed obstacle's margin
                     begin = self.late_starts(bundle, part)

@@ -14,11 +14,9 @@ test sees all decisions of a scenario in one `simulate_many` call.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import statistics
 import time
-from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -82,7 +80,8 @@ def decision_states(
         return [d for c in chains for d in _chain(robot, maps, planners, *c, depth, candidates)]
     paths = {f: str(m.path) for f, m in maps.items()}
     jobs = [(robot.key, paths, *c, depth, candidates) for c in chains]
-    with _cpu_jax(), ProcessPoolExecutor(min(workers, len(chains)), mp_context=get_context("spawn")) as pool:
+    spawn = get_context("spawn")
+    with ProcessPoolExecutor(min(workers, len(chains)), mp_context=spawn, initializer=_cpu_worker) as pool:
         return [d for found in pool.map(_chain_job, jobs) for d in found]
 
 
@@ -141,23 +140,15 @@ def _chain_job(job: tuple) -> list[Decision]:
     return _chain(_WORKER["robot"], _WORKER["maps"], _WORKER["planners"], f, s, seed, depth, candidates)
 
 
-@contextlib.contextmanager
-def _cpu_jax() -> Iterator[None]:
-    """Processes started inside this block run JAX on the CPU, one thread each (a GPU is the
-    simulators' and each spawned process would otherwise take most of its memory)."""
-    keep = {k: os.environ.get(k) for k in ("JAX_PLATFORMS", "XLA_FLAGS")}
+def _cpu_worker() -> None:
+    """A worker process's start, before its JAX starts a backend: JAX on the CPU, one thread
+    (a GPU is the simulators', and each process would otherwise take most of its memory)."""
+    import jax
+
+    one_thread = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    os.environ["XLA_FLAGS"] = " ".join(x for x in (os.environ.get("XLA_FLAGS"), one_thread) if x)
     os.environ["JAX_PLATFORMS"] = "cpu"
-    os.environ["XLA_FLAGS"] = " ".join(
-        x for x in (keep["XLA_FLAGS"], "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1") if x
-    )
-    try:
-        yield
-    finally:
-        for k, v in keep.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    jax.config.update("jax_platforms", "cpu")
 
 
 def measure(
