@@ -9,7 +9,14 @@ it is a stand-in for the GPU's run, not the test itself.
     python benchmarks/agreement_run.py MAPS_DIR --out agree.json [--device cpu] [--seeds N]
 
 MAPS_DIR: case1.h5 and case2.h5 built with `lmjx build-map --failure caseN --edges 100000
---seed 2026`.
+--seed 2026`.  The decisions need no simulator and take most of the time (about 16 s each on
+one core): a machine without a GPU may build them for one with,
+
+    python benchmarks/agreement_run.py MAPS_DIR --save-decisions decisions.pkl.gz   # no GPU needed
+    python benchmarks/agreement_run.py --decisions decisions.pkl.gz --out agree.json  # on the GPU
+
+(the file: a gzip'd pickle of `lmjx.agreement.Decision`s, with the maps' seed and sizes;
+pickle runs code when read: load only files you made).
 """
 
 from __future__ import annotations
@@ -19,7 +26,16 @@ import json
 import sys
 from pathlib import Path
 
-from lmjx.agreement import MAP_SEED, MIN_DECISIONS, OUT_OF_SAMPLE_SEEDS, out_of_sample, passes
+from lmjx.agreement import (
+    MAP_SEED,
+    MIN_DECISIONS,
+    OUT_OF_SAMPLE_SEEDS,
+    load_decisions,
+    out_of_sample,
+    out_of_sample_decisions,
+    passes,
+    save_decisions,
+)
 from lmjx.errors import LmjxError
 from lmjx.evaluate import load_maps
 from lmjx.fileio import write_text_atomic
@@ -27,16 +43,21 @@ from lmjx.robot import load_robot
 from lmjx.trial import make_simulator
 
 
-def setup(prog: str, failures: tuple[str, ...], maps_dir: Path) -> tuple:
-    """The Panda, its maps for `failures` and MuJoCo Warp's config class (`GpuSimConfig`), or
-    a one-line exit naming `prog` (no warp-lang, a missing or foreign map)."""
-    try:
-        import warp  # noqa: F401  (MuJoCo Warp's runtime; lmjx.simulate_gpu imports it when it runs)
+def setup(prog: str, failures: tuple[str, ...], maps_dir: Path | None, warp: bool = True) -> tuple:
+    """The Panda, its maps for `failures` (none without `maps_dir`) and MuJoCo Warp's config
+    class (`GpuSimConfig`; None without `warp`), or a one-line exit naming `prog` (no
+    warp-lang, a missing or foreign map)."""
+    GpuSimConfig = None
+    if warp:
+        try:
+            import warp as _warp  # noqa: F401  (MuJoCo Warp's runtime; lmjx.simulate_gpu imports it when it runs)
 
-        from lmjx.simulate_gpu import GpuSimConfig
-    except ImportError as e:
-        sys.exit(f"{prog}: {e} (the GPU extra: pip install -e '.[gpu]', or warp-lang alone for --device cpu)")
+            from lmjx.simulate_gpu import GpuSimConfig
+        except ImportError as e:
+            sys.exit(f"{prog}: {e} (the GPU extra: pip install -e '.[gpu]', or warp-lang alone for --device cpu)")
     robot = load_robot("panda")
+    if maps_dir is None:
+        return robot, {}, GpuSimConfig
     try:
         maps = load_maps(robot, failures, maps_dir)
     except LmjxError as e:
@@ -46,17 +67,44 @@ def setup(prog: str, failures: tuple[str, ...], maps_dir: Path) -> tuple:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("maps", type=Path, help="folder of case1.h5 and case2.h5 (seed 2026)")
-    ap.add_argument("--out", type=Path, required=True, help="the report (JSON)")
+    ap.add_argument(
+        "maps", type=Path, nargs="?", help="folder of case1.h5 and case2.h5 (seed 2026); not with --decisions"
+    )
+    ap.add_argument("--out", type=Path, help="the report (JSON)")
     ap.add_argument("--device", default=None, help="Warp device: cpu, or cuda:0 (default: the first CUDA device)")
     ap.add_argument("--seeds", type=int, default=OUT_OF_SAMPLE_SEEDS, help="trial seeds from 500 (default: the test's)")
+    ap.add_argument("--save-decisions", type=Path, help="build the decisions only (no simulator) and write them here")
+    ap.add_argument("--decisions", type=Path, help="measure decisions built before (--save-decisions)")
     args = ap.parse_args()
     if not 1 <= args.seeds <= OUT_OF_SAMPLE_SEEDS:
         sys.exit(f"agreement_run: --seeds must lie in 1-{OUT_OF_SAMPLE_SEEDS} (the test's seeds from 500)")
-    robot, maps, GpuSimConfig = setup("agreement_run", ("case1", "case2"), args.maps)
+    if (args.maps is None) == (args.decisions is None):
+        sys.exit("agreement_run: give the maps' folder or --decisions (one of them)")
+    if args.save_decisions is None and args.out is None:
+        sys.exit("agreement_run: --out is needed (or --save-decisions, to build the decisions only)")
+    if args.save_decisions is not None and args.decisions is not None:
+        sys.exit("agreement_run: --save-decisions builds decisions from the maps, not from --decisions")
+    robot, maps, GpuSimConfig = setup("agreement_run", ("case1", "case2"), args.maps, warp=args.save_decisions is None)
     for f, m in maps.items():
         if m.edges.config.seed != MAP_SEED or m.reach.config.seed != MAP_SEED:
             sys.exit(f"agreement_run: {f}: not a map of seed {MAP_SEED} (the test's out-of-sample maps)")
+    built = None
+    if args.decisions is not None:
+        try:
+            blob = load_decisions(args.decisions)
+        except LmjxError as e:
+            sys.exit(f"agreement_run: {e}")
+        args.seeds = blob["seeds"]
+        built = (blob["decisions"], blob["seconds"], blob["workers"])
+        print(f"{len(built[0])} decisions of maps {blob['maps']} ({built[1]:.0f} s, {built[2]} workers)")
+    elif args.save_decisions is not None:
+        from lmjx.cores import usable_cores
+
+        workers = usable_cores()
+        decisions, took = out_of_sample_decisions(robot, maps, args.seeds, workers)
+        save_decisions(args.save_decisions, (decisions, took, workers), maps, args.seeds)
+        print(f"{len(decisions)} decisions in {took:.0f} s ({workers} workers): {args.save_decisions}")
+        return
     cfg = None
     if args.device:  # on Warp's CPU device padding costs its full time: finer batch sizes
         fine = (64, 256, 512, 1024, 2048, 4096) if args.device == "cpu" else GpuSimConfig().buckets
@@ -67,6 +115,7 @@ def main() -> None:
         {s: make_simulator(robot, s, "gpu", "hard", gpu_config=cfg) for s in (1, 2, 3)},
         {s: make_simulator(robot, s, "cpu", "hard") for s in (1, 2, 3)},
         args.seeds,
+        built=built,
     )
     report |= {"device": args.device or "cuda", "passed": passes(report)}
     write_text_atomic(args.out, json.dumps(report, indent=1) + "\n")

@@ -14,7 +14,9 @@ test sees all decisions of a scenario in one `simulate_many` call.
 
 from __future__ import annotations
 
+import gzip
 import os
+import pickle
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -24,7 +26,9 @@ from multiprocessing import get_context
 import numpy as np
 
 from .actions import TransitPlanner, after_executing
+from .errors import ConfigError
 from .executor import Observation, SimulatedRealWorld
+from .fileio import atomic_path
 from .goalfield import GoalField
 from .mapfile import MapFile
 from .planner import edges_over_target, score, table_bounds
@@ -46,6 +50,7 @@ OUT_OF_SAMPLE_SEEDS = 12
 MIN_DECISIONS = 200
 MIN_SAME_OR_NEAR = 0.95
 MAX_MEDIAN_END_DIFF = 1e-4  # [m]
+DECISIONS_FORMAT = "lmjx-agreement-decisions/1"  # `save_decisions`' files
 
 
 @dataclass
@@ -211,26 +216,72 @@ def measure(
     }
 
 
-def out_of_sample(
-    robot: Robot,
-    maps: dict[str, MapFile],
-    tested: dict[int, Simulator],
-    reference: dict[int, Simulator],
-    seeds: int = OUT_OF_SAMPLE_SEEDS,
-    workers: int | None = None,
-) -> dict:
-    """The agreement test's measurement: its decisions (trial seeds FIRST_SEED onward, the three
-    scenarios, depth 3, up to 64 candidates; built in `workers` processes, default one per
-    usable core) measured by `measure`, with the seeds and the seconds the decisions took."""
+def out_of_sample_decisions(
+    robot: Robot, maps: dict[str, MapFile], seeds: int = OUT_OF_SAMPLE_SEEDS, workers: int | None = None
+) -> tuple[list[Decision], float]:
+    """The agreement test's decisions (trial seeds FIRST_SEED onward, the three scenarios,
+    depth 3, up to 64 candidates; built in `workers` processes, default one per usable core)
+    and the seconds they took.  They need no simulator: a machine without a GPU may build
+    them for one with (`benchmarks/agreement_run.py --save-decisions`)."""
     from .cores import usable_cores
 
     workers = usable_cores() if workers is None else workers
     t0 = time.perf_counter()
     decisions = decision_states(robot, maps, (1, 2, 3), seeds, 3, 64, first_seed=FIRST_SEED, workers=workers)
-    took = time.perf_counter() - t0
+    return decisions, time.perf_counter() - t0
+
+
+def out_of_sample(
+    robot: Robot,
+    maps: dict[str, MapFile] | None,
+    tested: dict[int, Simulator],
+    reference: dict[int, Simulator],
+    seeds: int = OUT_OF_SAMPLE_SEEDS,
+    workers: int | None = None,
+    built: tuple[list[Decision], float, int] | None = None,
+) -> dict:
+    """The agreement test's measurement: its decisions (`out_of_sample_decisions`) measured by
+    `measure`, with the seeds and the seconds the decisions took.  `built`: decisions made
+    before (elsewhere), with their seconds and workers; `maps` is then not read."""
+    if built is None:
+        from .cores import usable_cores
+
+        assert maps is not None, "out_of_sample needs the maps or the decisions built from them"
+        workers = usable_cores() if workers is None else workers
+        decisions, took = out_of_sample_decisions(robot, maps, seeds, workers)
+    else:
+        decisions, took, workers = built
     report = measure(robot, decisions, tested, reference)
     report["seconds"]["decisions"] = took
     return report | {"map_seed": MAP_SEED, "first_seed": FIRST_SEED, "seeds": seeds, "decision_workers": workers}
+
+
+def save_decisions(path, built: tuple[list[Decision], float, int], maps: dict[str, MapFile], seeds: int) -> None:
+    """Write decisions built by `out_of_sample_decisions` (with their seconds and workers) for
+    a machine with a GPU to measure: a gzip'd pickle, the maps' seed and sizes beside them,
+    written atomically."""
+    decisions, took, workers = built
+    meta = {f: {"seed": m.edges.config.seed, "edges": int(m.edges.n_edges)} for f, m in maps.items()}
+    blob = {"format": DECISIONS_FORMAT, "map_seed": MAP_SEED, "maps": meta, "seeds": seeds, "seconds": took,
+            "workers": workers, "decisions": decisions}  # fmt: skip
+    with atomic_path(path) as tmp, gzip.open(tmp, "wb", compresslevel=6) as fh:
+        pickle.dump(blob, fh, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def load_decisions(path) -> dict:
+    """What `save_decisions` wrote (keys format, map_seed, maps, seeds, seconds, workers,
+    decisions); ConfigError for any other file.  Pickle runs code as it reads: load only
+    files you made."""
+    try:
+        with gzip.open(path, "rb") as fh:
+            blob = pickle.load(fh)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError) as e:
+        raise ConfigError(f"{path}: not a decisions file ({e})") from None
+    if not isinstance(blob, dict) or blob.get("format") != DECISIONS_FORMAT:
+        raise ConfigError(f"{path}: not a decisions file of {DECISIONS_FORMAT}")
+    if blob["map_seed"] != MAP_SEED:
+        raise ConfigError(f"{path}: decisions on maps of seed {blob['map_seed']}, not the test's {MAP_SEED}")
+    return blob
 
 
 def passes(report: dict) -> bool:

@@ -544,15 +544,30 @@ def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan
                 assert min(clearance(q, movable) for q in a.q[: a.transit_steps : 2]) >= OBJECT_MARGIN - 1e-4
 
 
-def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map):
+def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map, tmp_path):
     """`decision_states` with workers (spawned processes, JAX on the CPU in each: how the
     agreement test builds its 200-odd decisions on a GPU machine) makes the same decisions,
-    in the same order, with the same candidates' joint targets as one process."""
-    from lmjx.agreement import decision_states
+    in the same order, with the same candidates' joint targets as one process; and so do
+    decisions written by `save_decisions` and read back (a CPU machine builds them for a GPU
+    machine to measure), whose reader refuses any other file."""
+    from lmjx.agreement import decision_states, load_decisions, save_decisions
+    from lmjx.errors import ConfigError
 
     m = load_map(plan_map)
     one = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5)
-    two = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5, workers=2)
+    made = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5, workers=2)
+    save_decisions(tmp_path / "d.pkl.gz", (made, 1.5, 2), {"case2": m}, 2)
+    blob = load_decisions(tmp_path / "d.pkl.gz")
+    two = blob["decisions"]
+    assert (blob["seconds"], blob["workers"], blob["seeds"], blob["maps"]["case2"]["edges"]) == (
+        1.5,
+        2,
+        2,
+        m.edges.n_edges,
+    )
+    (tmp_path / "other.gz").write_bytes(b"not a pickle")
+    with pytest.raises(ConfigError, match="not a decisions file"):
+        load_decisions(tmp_path / "other.gz")
     assert [(d.seed, d.depth) for d in one] == [(d.seed, d.depth) for d in two] == [(5, 0), (6, 0)]
     for a, b in zip(one, two, strict=True):
         np.testing.assert_array_equal(a.observation.objects, b.observation.objects)
