@@ -3,7 +3,7 @@
 # against C MuJoCo, then time them.  Run from the repository root on the device machine:
 #     bash benchmarks/gpu_session.sh [smoke] [tests] [variants] [bench] [maps] [locks]
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
-# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026; issue 19:
+# warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026 (or agreedec); issue 19:
 # issue19, evmap (once per carried map), evprev (results of an earlier machine), eval19 (again to continue); planner, gputests, evalgpu and decision need
 # warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
@@ -277,6 +277,12 @@ for step in $steps; do
       # and seeds fixed in the test before this run).
       LMJX_TEST_MAPS="$WORK/maps2026" LMJX_TEST_REPORT="$OUT/agreement2026.json" timeout 580 python3 -m pytest -q \
         -p no:cacheprovider -rA tests/test_simulate_gpu.py 2>&1 | tail -25 ;;
+    agreedec)
+      # The agreement test's decisions built elsewhere (benchmarks/agreement_run.py MAPS
+      # --save-decisions, no GPU needed; DECISIONS: the file, default /tmp/dec/decisions.pkl.gz)
+      # measured here: MuJoCo Warp against C MuJoCo on this host's cores.
+      timeout 580 python3 benchmarks/agreement_run.py --decisions "${DECISIONS:-/tmp/dec/decisions.pkl.gz}" \
+        --out "$OUT/agreement.json" 2>&1 | tail -3 ;;
     locks)
       timeout 500 python3 -m lmjx.cli lock-search --joints J6,J7 --grid 9 --out "$OUT/lock_j6j7.json" \
         --png "$OUT/lock_j6j7.png" | tail -3 ;;
