@@ -550,6 +550,9 @@ def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map,
     in the same order, with the same candidates' joint targets as one process; and so do
     decisions written by `save_decisions` and read back (a CPU machine builds them for a GPU
     machine to measure), whose reader refuses any other file."""
+    import gzip
+    import pickle
+
     from lmjx.agreement import decision_states, load_decisions, save_decisions
     from lmjx.errors import ConfigError
 
@@ -568,6 +571,10 @@ def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map,
     (tmp_path / "other.gz").write_bytes(b"not a pickle")
     with pytest.raises(ConfigError, match="not a decisions file"):
         load_decisions(tmp_path / "other.gz")
+    with gzip.open(tmp_path / "dict.gz", "wb") as fh:  # a pickle, but not of decisions
+        pickle.dump({"decisions": made}, fh)
+    with pytest.raises(ConfigError, match="not a decisions file of"):
+        load_decisions(tmp_path / "dict.gz")
     assert [(d.seed, d.depth) for d in one] == [(d.seed, d.depth) for d in two] == [(5, 0), (6, 0)]
     for a, b in zip(one, two, strict=True):
         np.testing.assert_array_equal(a.observation.objects, b.observation.objects)
