@@ -256,7 +256,9 @@ def out_of_sample(
     return report | {"map_seed": MAP_SEED, "first_seed": FIRST_SEED, "seeds": seeds, "decision_workers": workers}
 
 
-def save_decisions(path, built: tuple[list[Decision], float, int], maps: dict[str, MapFile], seeds: int) -> None:
+def save_decisions(
+    path: str | os.PathLike, built: tuple[list[Decision], float, int], maps: dict[str, MapFile], seeds: int
+) -> None:
     """Write decisions built by `out_of_sample_decisions` (with their seconds and workers) for
     a machine with a GPU to measure: a gzip'd pickle, the maps' seed and sizes beside them,
     written atomically."""
@@ -268,7 +270,7 @@ def save_decisions(path, built: tuple[list[Decision], float, int], maps: dict[st
         pickle.dump(blob, fh, protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def load_decisions(path) -> dict:
+def load_decisions(path: str | os.PathLike) -> dict:
     """What `save_decisions` wrote (keys format, map_seed, maps, seeds, seconds, workers,
     decisions); ConfigError for any other file.  Pickle runs code as it reads: load only
     files you made."""
