@@ -98,12 +98,9 @@ def main() -> None:
         built = (blob["decisions"], blob["seconds"], blob["workers"])
         print(f"{len(built[0])} decisions of maps {blob['maps']} ({built[1]:.0f} s, {built[2]} workers)")
     elif args.save_decisions is not None:
-        from lmjx.cores import usable_cores
-
-        workers = usable_cores()
-        decisions, took = out_of_sample_decisions(robot, maps, args.seeds, workers)
-        save_decisions(args.save_decisions, (decisions, took, workers), maps, args.seeds)
-        print(f"{len(decisions)} decisions in {took:.0f} s ({workers} workers): {args.save_decisions}")
+        made = out_of_sample_decisions(robot, maps, args.seeds)
+        save_decisions(args.save_decisions, made, maps, args.seeds)
+        print(f"{len(made[0])} decisions in {made[1]:.0f} s ({made[2]} workers): {args.save_decisions}")
         return
     cfg = None
     if args.device:  # on Warp's CPU device padding costs its full time: finer batch sizes

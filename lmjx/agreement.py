@@ -137,11 +137,12 @@ def _chain_job(job: tuple) -> list[Decision]:
     from .robot import as_robot
 
     key, paths, f, s, seed, depth, candidates = job
-    if _WORKER.get("key") != (key, tuple(sorted(paths.items()))):
+    loaded = (key, tuple(sorted(paths.items())))
+    if _WORKER.get("key") != loaded:
         robot = as_robot(key)
         maps = {g: load_map(p, robot) for g, p in paths.items()}
         _WORKER.clear()
-        _WORKER.update(key=(key, tuple(sorted(paths.items()))), robot=robot, maps=maps, planners={})
+        _WORKER.update(key=loaded, robot=robot, maps=maps, planners={})
     return _chain(_WORKER["robot"], _WORKER["maps"], _WORKER["planners"], f, s, seed, depth, candidates)
 
 
@@ -218,17 +219,18 @@ def measure(
 
 def out_of_sample_decisions(
     robot: Robot, maps: dict[str, MapFile], seeds: int = OUT_OF_SAMPLE_SEEDS, workers: int | None = None
-) -> tuple[list[Decision], float]:
+) -> tuple[list[Decision], float, int]:
     """The agreement test's decisions (trial seeds FIRST_SEED onward, the three scenarios,
-    depth 3, up to 64 candidates; built in `workers` processes, default one per usable core)
-    and the seconds they took.  They need no simulator: a machine without a GPU may build
-    them for one with (`benchmarks/agreement_run.py --save-decisions`)."""
+    depth 3, up to 64 candidates; built in `workers` processes, default one per usable core),
+    the seconds they took and the workers.  They need no simulator: a machine without a GPU
+    may build them for one with (`save_decisions`, `benchmarks/agreement_run.py
+    --save-decisions`)."""
     from .cores import usable_cores
 
     workers = usable_cores() if workers is None else workers
     t0 = time.perf_counter()
     decisions = decision_states(robot, maps, (1, 2, 3), seeds, 3, 64, first_seed=FIRST_SEED, workers=workers)
-    return decisions, time.perf_counter() - t0
+    return decisions, time.perf_counter() - t0, workers
 
 
 def out_of_sample(
@@ -241,16 +243,12 @@ def out_of_sample(
     built: tuple[list[Decision], float, int] | None = None,
 ) -> dict:
     """The agreement test's measurement: its decisions (`out_of_sample_decisions`) measured by
-    `measure`, with the seeds and the seconds the decisions took.  `built`: decisions made
-    before (elsewhere), with their seconds and workers; `maps` is then not read."""
+    `measure`, with the seeds and the seconds the decisions took.  `built`: what
+    `out_of_sample_decisions` returned before (elsewhere); `maps` is then not read."""
     if built is None:
-        from .cores import usable_cores
-
         assert maps is not None, "out_of_sample needs the maps or the decisions built from them"
-        workers = usable_cores() if workers is None else workers
-        decisions, took = out_of_sample_decisions(robot, maps, seeds, workers)
-    else:
-        decisions, took, workers = built
+        built = out_of_sample_decisions(robot, maps, seeds, workers)
+    decisions, took, workers = built
     report = measure(robot, decisions, tested, reference)
     report["seconds"]["decisions"] = took
     return report | {"map_seed": MAP_SEED, "first_seed": FIRST_SEED, "seeds": seeds, "decision_workers": workers}
@@ -259,8 +257,8 @@ def out_of_sample(
 def save_decisions(
     path: str | os.PathLike, built: tuple[list[Decision], float, int], maps: dict[str, MapFile], seeds: int
 ) -> None:
-    """Write decisions built by `out_of_sample_decisions` (with their seconds and workers) for
-    a machine with a GPU to measure: a gzip'd pickle, the maps' seed and sizes beside them,
+    """Write what `out_of_sample_decisions` returned (decisions, seconds, workers) for a
+    machine with a GPU to measure: a gzip'd pickle, the maps' seed and sizes beside them,
     written atomically."""
     decisions, took, workers = built
     meta = {f: {"seed": m.edges.config.seed, "edges": int(m.edges.n_edges)} for f, m in maps.items()}
