@@ -245,13 +245,15 @@ def planner_config(
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
     late_start: bool = False,
+    push_weight: float = 0.0,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
     asm_settings="paper" the ASMs as the paper states them, `when_stuck` Greedy's rule when
     no candidate is predicted to improve (`PlannerConfig.when_stuck`), `late_start` edges whose
     start lies in a fixed obstacle's margin entered at their first clear state
-    (`PlannerConfig.late_start`)."""
+    (`PlannerConfig.late_start`), `push_weight` the score's weight on where the map pushes
+    toward the goal (`PlannerConfig.push_weight`)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -260,6 +262,7 @@ def planner_config(
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
         when_stuck=when_stuck,
         late_start=late_start,
+        push_weight=push_weight,
     )
     config.validate()
     return config.paper() if asm_settings == "paper" else config
@@ -276,6 +279,7 @@ def plan_task(
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
     late_start: bool = False,
+    push_weight: float = 0.0,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -292,7 +296,8 @@ def plan_task(
     "paper" (the ASMs as the paper states them); `when_stuck`: Greedy's rule when no
     candidate is predicted to improve ("best" or "options", `PlannerConfig.when_stuck`);
     `late_start`: offer edges whose start lies in a fixed obstacle's margin from their first
-    clear state (`PlannerConfig.late_start`);
+    clear state (`PlannerConfig.late_start`); `push_weight`: weigh the score by where the
+    map's edges push toward the goal (`PlannerConfig.push_weight`);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
@@ -343,7 +348,7 @@ def plan_task(
         sim_name, why = resolve_simulator(sim)
         if say is not None:
             say(f"simulator {sim_name} ({why})")
-    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start)
+    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight)
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None

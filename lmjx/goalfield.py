@@ -15,6 +15,7 @@ and 3 are scored by plain distance.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage, sparse
@@ -24,7 +25,17 @@ from .scenarios import Scenario, _corners
 
 
 class GoalField:
-    def __init__(self, sc: Scenario, table_lo: np.ndarray, table_hi: np.ndarray, cell: float = 0.005) -> None:
+    def __init__(
+        self,
+        sc: Scenario,
+        table_lo: np.ndarray,
+        table_hi: np.ndarray,
+        cell: float = 0.005,
+        weights: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> None:
+        """`weights`: a cost per metre at table points (n, 2) -> (n,), at least 1 (None: 1
+        everywhere, the path length); the field is then the cheapest way's cost
+        (`lmjx.pushfield`)."""
         self.cell = cell
         self.lo = np.asarray(table_lo, np.float64)[:2]
         nx, ny = (np.ceil((np.asarray(table_hi)[:2] - self.lo) / cell).astype(int) + 1).tolist()
@@ -41,10 +52,11 @@ class GoalField:
             blocked |= _inside(_corners(f.half, f.x, f.y, f.yaw, grow), pts)
         blocked = blocked.reshape(ny, nx)
         self.goal = np.asarray(sc.goal_center, np.float64)
-        self.euclidean = not blocked.any()
+        self.euclidean = not blocked.any() and weights is None
+        w = np.ones((ny, nx)) if weights is None else np.asarray(weights(pts), np.float64).reshape(ny, nx)
         goal = np.zeros_like(blocked)
         goal[round((self.goal[1] - self.lo[1]) / cell), round((self.goal[0] - self.lo[0]) / cell)] = True
-        dist = _shortest_paths(~blocked, goal & ~blocked, cell)
+        dist = _shortest_paths(~blocked, goal & ~blocked, cell, w)
         # cells in walls (or cut off): the nearest reachable cell's value + 2 x the way there
         bad = ~np.isfinite(dist)
         if bad.any():
@@ -83,11 +95,12 @@ def _inside(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-def _shortest_paths(free: np.ndarray, sources: np.ndarray, cell: float) -> np.ndarray:
-    """Path lengths (ny, nx) from the source cells through free cells (8-connected)."""
+def _shortest_paths(free: np.ndarray, sources: np.ndarray, cell: float, w: np.ndarray) -> np.ndarray:
+    """Path costs (ny, nx) from the source cells through free cells (8-connected), a step
+    costing its length times the mean of its two cells' weights `w` (ny, nx)."""
     ny, nx = free.shape
     idx = np.arange(ny * nx).reshape(ny, nx)
-    rows, cols, w = [], [], []
+    rows, cols, cost = [], [], []
     for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
         ya, yb = slice(0, ny - dy), slice(dy, ny)
         x0, x1 = max(0, -dx), nx - max(0, dx)
@@ -95,13 +108,13 @@ def _shortest_paths(free: np.ndarray, sources: np.ndarray, cell: float) -> np.nd
         ok = free[ya, xa] & free[yb, xb]
         rows.append(idx[ya, xa][ok])
         cols.append(idx[yb, xb][ok])
-        w.append(np.full(int(ok.sum()), cell * math.hypot(dx, dy)))
+        cost.append(cell * math.hypot(dx, dy) * 0.5 * (w[ya, xa][ok] + w[yb, xb][ok]))
     n = ny * nx
     src = n  # a virtual node joined to every source cell at no cost
     s_idx = idx[sources]
     rows.append(np.full(len(s_idx), src))
     cols.append(s_idx)
-    w.append(np.full(len(s_idx), 1e-12))
-    g = sparse.coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(n + 1, n + 1))
+    cost.append(np.full(len(s_idx), 1e-12))
+    g = sparse.coo_matrix((np.concatenate(cost), (np.concatenate(rows), np.concatenate(cols))), shape=(n + 1, n + 1))
     d = csgraph.dijkstra(g.tocsr(), directed=False, indices=src)
     return d[:n].reshape(ny, nx)

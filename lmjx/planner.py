@@ -79,6 +79,9 @@ class PlannerConfig:
     # wanted, an edge whose start lies within a fixed obstacle's margin is offered from its first
     # state clear of the scene (`TransitPlanner.late_starts`), where that part still acts on the
     # target; off: such an edge is not offered
+    push_weight: float = 0.0  # > 0: "closest" is the cost of the cheapest way to the goal, each
+    # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.pushfield`:
+    # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`)
 
     __repr__ = config_repr
 
@@ -89,6 +92,8 @@ class PlannerConfig:
             raise ConfigError("max_actions, greedy_candidates and lazy_tries must be positive")
         if self.greedy_fraction is not None and not 0.0 < self.greedy_fraction <= 1.0:
             raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
+        if not (math.isfinite(self.push_weight) and self.push_weight >= 0.0):
+            raise ConfigError(f"push weight {self.push_weight:g} must be a number at least 0")
         if self.when_stuck not in WHEN_STUCK:
             raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
 
@@ -113,6 +118,7 @@ class PlannerConfig:
             "greedy_subset": greedy,
             "when_stuck": self.when_stuck,
             "late_start": self.late_start,
+            "push_weight": self.push_weight,
         }
 
 
@@ -219,6 +225,28 @@ class _Straight:
 
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         return goal_distance(self.sc, np.asarray(xy))
+
+
+_FIELDS: dict[tuple, GoalField] = {}  # (bundle id, scenario, push weight) -> its weighted field
+
+
+def _score_field(
+    robot: Robot, failure: Failure, reach: ReachResult, bundle: Bundle, sc: Scenario, cfg: PlannerConfig
+) -> GoalField | _Straight:
+    """What Greedy and Lazy call "closest" (`PlannerConfig.path_score`, `push_weight`)."""
+    if not cfg.path_score:
+        return _Straight(sc)
+    lo, hi = table_bounds(robot)
+    if cfg.push_weight <= 0.0:
+        return GoalField(sc, lo, hi)
+    key = (id(bundle), sc, cfg.push_weight, cfg.target_margin)
+    if key not in _FIELDS:
+        from .pushfield import push_counts, push_weights
+
+        counts = push_counts(robot, failure, bundle, reach, sc, GoalField(sc, lo, hi))
+        radius = float(sc.target.half[0]) + cfg.target_margin
+        _FIELDS[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
+    return _FIELDS[key]
 
 
 def goal_distance(sc: Scenario, xy: np.ndarray) -> np.ndarray:
@@ -343,7 +371,7 @@ class Planner:
         self.batched = batched
         self.transits = transits or TransitPlanner(robot, failure, batched=batched)
         self.transits.late_start = config.late_start  # (trials sharing a TransitPlanner share a config)
-        self.field = GoalField(sc, *table_bounds(robot)) if config.path_score else _Straight(sc)
+        self.field = _score_field(robot, failure, reach, bundle, sc, config)
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
         self.futile: dict[int, np.ndarray] = {}

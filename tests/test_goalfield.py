@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from lmjx.goalfield import GoalField
 from lmjx.scenarios import scenario
@@ -41,3 +42,26 @@ def test_inside_a_wall_costs_more_than_beside_it():
     inside = np.array([wall.x, wall.y])
     beside = np.array([wall.x, wall.y + wall.half[1] + 0.05])
     assert np.isfinite(f(inside)) and f(inside) > f(beside)
+
+
+def test_weights_scale_the_path_cost():
+    """A constant weight w makes every free cell's value w times the path length."""
+    sc = scenario(2, tasks="hard")
+    f = GoalField(sc, LO, HI)
+    g = GoalField(sc, LO, HI, weights=lambda p: np.full(len(p), 3.0))
+    pts = np.random.default_rng(1).uniform([0.1, -0.4], [0.8, 0.6], (400, 2))
+    pts = pts[np.abs(pts[:, 1] - 0.26) > 0.08]  # away from the wall's cells
+    np.testing.assert_allclose(g(pts), 3.0 * f(pts), rtol=1e-9)
+
+
+def test_a_band_of_weight_costs_its_width_times_the_weight():
+    """Open table, a band x > 0.6 weighted 5: from a point level with the goal, beyond the
+    band's edge, the cost is 5 x its way in the band plus the rest (the grid's axis is exact;
+    the step across the band's edge takes the mean weight)."""
+    sc = scenario(1, tasks="hard")
+    gx, gy = sc.goal_center
+    g = GoalField(sc, LO, HI, weights=lambda p: np.where(p[:, 0] > 0.6, 5.0, 1.0))
+    for x in (0.7, 0.85, 1.0):
+        exact = 5.0 * (x - 0.6) + (0.6 - gx)
+        assert float(g(np.array([x, gy]))) == pytest.approx(exact, abs=2 * 0.005 * 4)
+    assert float(g(np.array([gx - 0.2, gy]))) == pytest.approx(0.2, abs=1e-6)  # outside the band: the distance

@@ -984,3 +984,75 @@ def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(rob
     big = _box_kernel(robot, tp.scene.padded(MAX_BOXES)).run(qs)["box_clearance"][:, :EDGE_BOXES]
     assert len(qs) > 256 and small.shape == big.shape
     np.testing.assert_allclose(small, big, rtol=0, atol=1e-6)
+
+
+def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_map):
+    """`pushfield.push_pairs` on the tunnel (hard scenario 2) against a reference computed
+    here with C MuJoCo's kinematics (each table-checked capsule's ends from its geom's pose):
+    for a sample of the edges whose start is clear of the wall and roof, the same (cell, edge)
+    pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
+    angle only adds pairs; the counts are the pairs per cell."""
+    from lmjx.actions import FIXED_MARGIN
+    from lmjx.goalfield import GoalField
+    from lmjx.planner import table_bounds
+    from lmjx.pushfield import far_objects, push_counts, push_pairs
+
+    m = load_map(plan_map)
+    b, reach = m.edges, m.reach
+    sc = scenario(2, tasks="hard")
+    field = GoalField(sc, *table_bounds(robot))
+    cells, edges = push_pairs(robot, m.failure, b, reach, sc, field)
+    assert len(cells) > 100
+    ny, nx = reach.labels.shape
+    index = {(c, int(e)) for c in range(ny * nx) for e in b.index_edges[b.index_offset[c] : b.index_offset[c + 1]]}
+    assert {(int(c), int(e)) for c, e in zip(cells, edges, strict=True)} <= index
+    wide_cells, wide_edges = push_pairs(robot, m.failure, b, reach, sc, field, max_angle=90.0)
+    ours_45 = set(zip(cells.tolist(), edges.tolist(), strict=True))
+    assert ours_45 < set(zip(wide_cells.tolist(), wide_edges.tolist(), strict=True))
+    counts = push_counts(robot, m.failure, b, reach, sc, field)
+    np.testing.assert_array_equal(counts.ravel(), np.bincount(cells, minlength=ny * nx))
+
+    # the reference: C MuJoCo's capsule geoms, the scene's slacks for the wall and roof
+    tp = TransitPlanner(robot, m.failure, batched=True)
+    tp.set_scene(sc, far_objects(sc), acting=False)
+    fixed = ~tp.scene.movable
+    clear = np.nonzero(tp.scene_slacks(b.q_start.astype(np.float64))[:, fixed].min(axis=1) >= 0)[0]
+    sample = np.random.default_rng(0).choice(clear, 150, replace=False)
+    mj, d = robot.mj, mujoco.MjData(robot.mj)
+    geom_of_cap = [g for g in range(mj.ngeom) if mj.geom_bodyid[g] != 0]
+    caps = [geom_of_cap[c] for c in robot.arm.table_caps]
+    gy, gx = np.gradient(field.values, field.cell)
+    cell = reach.config.cell
+    x0, y0 = reach.xs[0] - cell / 2, reach.ys[0] - cell / 2
+    ref = set()
+    for e in sample:
+        q = b.edge(int(e), ("q",))["q"].astype(np.float64)
+        prefix = len(q)
+        slack = tp.scene_slacks(q)[:, fixed].min(axis=1) + FIXED_MARGIN  # the clearance to the wall and roof
+        if (slack < FIXED_MARGIN).any():
+            prefix = int(np.argmax(slack < FIXED_MARGIN))
+        low = np.zeros((len(q), len(caps), 3))
+        for k, qk in enumerate(q):
+            d.qpos[:] = qk
+            mujoco.mj_kinematics(mj, d)
+            for j, g in enumerate(caps):
+                axis = d.geom_xmat[g].reshape(3, 3)[:, 2] * mj.geom_size[g, 1]
+                ends = (d.geom_xpos[g] - axis, d.geom_xpos[g] + axis)
+                low[k, j] = min(ends, key=lambda p: p[2])
+        radius = np.array([mj.geom_size[g, 0] for g in caps])
+        for k in range(prefix - 1):
+            for j in range(len(caps)):
+                if low[k, j, 2] - robot.arm.table_z - radius[j] > 0.05:
+                    continue
+                p, v = low[k, j, :2], low[k + 1, j, :2] - low[k, j, :2]
+                fx = int(np.clip(np.floor((p[0] - field.lo[0]) / field.cell), 0, field.shape[1] - 1))
+                fy = int(np.clip(np.floor((p[1] - field.lo[1]) / field.cell), 0, field.shape[0] - 1))
+                g = -np.array([gx[fy, fx], gy[fy, fx]])
+                if np.hypot(*v) > 1e-4 and v @ g >= np.cos(np.radians(45.0)) * np.hypot(*v) * np.hypot(*g) > 0:
+                    cx, cy = int(np.floor((p[0] - x0) / cell)), int(np.floor((p[1] - y0) / cell))
+                    if 0 <= cx < nx and 0 <= cy < ny:
+                        ref.add((cy * nx + cx, int(e)))
+    ours = {(int(c), int(e)) for c, e in zip(cells, edges, strict=True) if e in set(sample.tolist())}
+    assert len(ref) > 20
+    # float32 kinematics against float64: a point on a cell's border may fall either side
+    assert len(ours ^ ref) <= max(2, len(ref) // 100), (len(ours), len(ref), sorted(ours ^ ref)[:5])

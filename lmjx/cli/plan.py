@@ -71,7 +71,29 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "where the rest still acts on the target (default: such an edge is not offered; a lever for the tunnel, "
         "docs/EVALUATION.md)",
     )
+    p.add_argument(
+        "--push-weight",
+        type=_nonnegative_float,
+        default=0.0,
+        metavar="W",
+        help="greedy and lazy score a candidate by the cost of the target's way to the goal, each metre weighted "
+        "by 1 + W ln(median / n), n the map's edges that push toward the goal there (at least 1; the counts take "
+        "a few minutes per map and scenario on a CPU); default 0: the path length around the fixed obstacles "
+        "(a lever for the tunnel, docs/EVALUATION.md)",
+    )
     _add_sim(p)
+
+
+def _nonnegative_float(text: str) -> float:
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0.0):
+        raise argparse.ArgumentTypeError(f"must be a number at least 0, got {text}")
+    return value
 
 
 def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
@@ -87,8 +109,9 @@ def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConf
     from ..api import planner_config
 
     return planner_config(
-        asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start
-    )
+        asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start,
+        args.push_weight,
+    )  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -121,7 +144,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
         candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck,
-        late_start=args.late_start, sim=args.sim,
+        late_start=args.late_start, push_weight=args.push_weight, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
