@@ -264,8 +264,10 @@ def planner_config(
         late_start=late_start,
         push_weight=push_weight,
     )
+    if asm_settings == "paper":
+        config = config.paper()
     config.validate()
-    return config.paper() if asm_settings == "paper" else config
+    return config
 
 
 def plan_task(
@@ -346,9 +348,9 @@ def plan_task(
         sim_name, why = "none", "random does not simulate"
     else:
         sim_name, why = resolve_simulator(sim)
-        if say is not None:
-            say(f"simulator {sim_name} ({why})")
     config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight)
+    if say is not None and sim_name != "none":  # once the settings are checked
+        say(f"simulator {sim_name} ({why})")
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None

@@ -217,6 +217,24 @@ def simulator_description(name: str) -> str:
     return f"{name}: C MuJoCo mujoco.rollout on {usable_cores()} cores, {what}"
 
 
+def _settings_lines(records: list[dict], config: EvalConfig) -> list[str]:
+    """The ASM settings the trials ran with, as their records say (a report rewritten from
+    merged runs: each distinct set with its ASMs), else this run's config's."""
+    by: dict[str, tuple[dict, set[str]]] = {}  # settings (by content) -> (as recorded, the ASMs)
+    for r in records:
+        if "asm_settings" in r:
+            by.setdefault(json.dumps(r["asm_settings"], sort_keys=True), (r["asm_settings"], set()))[1].add(r["asm"])
+    if not by:
+        by = {"": (config.planner.settings(), set())}
+
+    def line(settings: dict) -> str:
+        return ", ".join(f"{k} {_onoff(v)}" for k, v in settings.items())
+
+    if len(by) == 1:
+        return [f"ASM settings: {line(next(iter(by.values()))[0])}."]
+    return [f"ASM settings ({', '.join(sorted(asms))}): {line(st)}." for st, asms in by.values()]
+
+
 def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:
     rows = summarize(records)
     planned = config.trials * len(config.failures) * len(config.scenarios) * len(config.asms)
@@ -242,11 +260,8 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
             f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
             f"{r['task_s_mean']:.1f} |"
         )
-    settings = config.planner.settings()
+    lines += ["", *_settings_lines(records, config), ""]
     lines += [
-        "",
-        "ASM settings: " + ", ".join(f"{k} {_onoff(v)}" for k, v in settings.items()) + ".",
-        "",
         'How the trials ended, and what their executed actions did in the "real" world (the target moved by '
         "1 cm or more; a transit touched a movable object; a transit touched a fixed obstacle):",
         "",

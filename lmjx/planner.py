@@ -94,6 +94,11 @@ class PlannerConfig:
             raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
         if not (math.isfinite(self.push_weight) and self.push_weight >= 0.0):
             raise ConfigError(f"push weight {self.push_weight:g} must be a number at least 0")
+        if self.push_weight > 0.0 and not self.path_score:
+            raise ConfigError(
+                "a push weight weighs the path-length score, which the paper's ASM settings replace by the "
+                "straight distance: leave out --push-weight or --asm-settings paper"
+            )
         if self.when_stuck not in WHEN_STUCK:
             raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
 
@@ -227,9 +232,6 @@ class _Straight:
         return goal_distance(self.sc, np.asarray(xy))
 
 
-_FIELDS: dict[tuple, GoalField] = {}  # (bundle id, scenario, push weight) -> its weighted field
-
-
 def _score_field(
     robot: Robot, failure: Failure, reach: ReachResult, bundle: Bundle, sc: Scenario, cfg: PlannerConfig
 ) -> GoalField | _Straight:
@@ -237,16 +239,17 @@ def _score_field(
     if not cfg.path_score:
         return _Straight(sc)
     lo, hi = table_bounds(robot)
-    if cfg.push_weight <= 0.0:
+    if cfg.push_weight <= 0.0 or cfg.asm == "random":  # (Random scores nothing: no counts for it)
         return GoalField(sc, lo, hi)
-    key = (id(bundle), sc, cfg.push_weight, cfg.target_margin)
-    if key not in _FIELDS:
-        from .pushfield import push_counts, push_weights
+    from .pushfield import bundle_memo, push_counts, push_weights
 
+    memo = bundle_memo(bundle)  # the weighted field, once per bundle, scenario and weight
+    key = ("field", sc, cfg.push_weight, cfg.target_margin)
+    if key not in memo:
         counts = push_counts(robot, failure, bundle, reach, sc, GoalField(sc, lo, hi))
         radius = float(sc.target.half[0]) + cfg.target_margin
-        _FIELDS[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
-    return _FIELDS[key]
+        memo[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
+    return memo[key]
 
 
 def goal_distance(sc: Scenario, xy: np.ndarray) -> np.ndarray:

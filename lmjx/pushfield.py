@@ -31,7 +31,7 @@ from .robot import Robot
 from .scenarios import Scenario
 
 STATES_PER_CALL = 200_000  # edge states read and checked per pass
-_MEMO: dict[tuple, np.ndarray] = {}  # (bundle id, scenario, settings) -> counts (one process)
+MEMO_ATTR = "_push_memo"  # kept on the bundle: (scenario, settings, ...) -> what was computed for it
 
 
 def far_objects(sc: Scenario) -> np.ndarray:
@@ -55,13 +55,24 @@ def push_counts(
     height: float = 0.05,
 ) -> np.ndarray:
     """(ny, nx) per reach cell: how many edges push toward the goal there (module docstring;
-    `push_pairs`), kept for the process's later calls."""
-    key = (id(bundle), sc, max_angle, height, field.cell)
-    if key not in _MEMO:
+    `push_pairs`), kept with the bundle for later calls."""
+    memo = bundle_memo(bundle)
+    key = ("counts", sc, max_angle, height, field.cell)
+    if key not in memo:
         cells, _ = push_pairs(robot, failure, bundle, reach, sc, field, max_angle, height)
         ny, nx = reach.labels.shape
-        _MEMO[key] = np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
-    return _MEMO[key]
+        memo[key] = np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
+    return memo[key]
+
+
+def bundle_memo(bundle: Bundle) -> dict:
+    """What was computed from this bundle's edges (the push counts, the weighted fields): it
+    lives as long as the bundle."""
+    memo = getattr(bundle, MEMO_ATTR, None)
+    if memo is None:
+        memo = {}
+        setattr(bundle, MEMO_ATTR, memo)
+    return memo
 
 
 def push_pairs(

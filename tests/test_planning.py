@@ -215,7 +215,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
                            "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
             "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options",
-            "late_start": True}  # fmt: skip
+            "late_start": True, "push_weight": 0.0}  # fmt: skip
     assert out["asm_settings"]["when_stuck"] == "best" and out["asm_settings"]["late_start"] is False
     assert paper["asm_settings"] == want
     for args, message in (
@@ -225,6 +225,23 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "clever"), "invalid choice"),
         (("evaluate", "--maps", tmp_path, "--out", tmp_path / "e"), "does not exist"),
         (("evaluate", "--asms", "smart", "--out", tmp_path / "e"), "unknown ASM"),
+        (
+            (
+                "plan",
+                "--map",
+                small_map,
+                "--scenario",
+                "2",
+                "--asm",
+                "greedy",
+                "--asm-settings",
+                "paper",
+                "--push-weight",
+                "1",
+            ),
+            "leave out --push-weight",
+        ),
+        (("plan", "--map", small_map, "--scenario", "2", "--asm", "greedy", "--push-weight", "-1"), "at least 0"),
     ):
         cli(*args).one_line_error(message)
     assert not (tmp_path / "e").exists()  # a refused evaluation leaves no empty --out folder behind
@@ -1011,6 +1028,13 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     assert ours_45 < set(zip(wide_cells.tolist(), wide_edges.tolist(), strict=True))
     counts = push_counts(robot, m.failure, b, reach, sc, field)
     np.testing.assert_array_equal(counts.ravel(), np.bincount(cells, minlength=ny * nx))
+    # the planner's score with a push weight: every metre costs at least 1, more where few push
+    from lmjx.planner import _score_field
+
+    weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
+    assert weighted is _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))  # kept
+    pts = np.random.default_rng(1).uniform([0.2, 0.0], [0.7, 0.5], (300, 2))
+    assert np.all(weighted(pts) >= field(pts) - 1e-9) and np.any(weighted(pts) > 1.5 * field(pts))
 
     # the reference: C MuJoCo's capsule geoms, the scene's slacks for the wall and roof
     tp = TransitPlanner(robot, m.failure, batched=True)
@@ -1056,3 +1080,20 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     assert len(ref) > 20
     # float32 kinematics against float64: a point on a cell's border may fall either side
     assert len(ours ^ ref) <= max(2, len(ref) // 100), (len(ours), len(ref), sorted(ours ^ ref)[:5])
+
+
+def test_a_report_says_the_settings_its_trials_ran_with():
+    """A report rewritten from merged runs (a config that does not know their settings) takes
+    the settings from the trials' records: one line where they agree, one per set where not."""
+    from lmjx.evaluate import EvalConfig, _settings_lines
+
+    config = EvalConfig(tasks="hard", planner=PlannerConfig())
+    weighted = PlannerConfig(push_weight=1.0).settings()
+    one = _settings_lines([{"asm": "greedy", "asm_settings": weighted}] * 2, config)
+    assert one == [_settings_lines([], EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=1.0)))[0]]
+    assert "push_weight 1.0" in one[0]
+    two = _settings_lines(
+        [{"asm": "greedy", "asm_settings": weighted}, {"asm": "lazy", "asm_settings": PlannerConfig().settings()}],
+        config,
+    )
+    assert len(two) == 2 and two[0].startswith("ASM settings (greedy)") and "push_weight 0.0" in two[1]

@@ -86,6 +86,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         part=_part(args.part),
     )
     config.validate()
+    _planner_config(args, "greedy", "cpu")  # the planner's settings checked before anything is loaded or said
     out = Path(args.out)
     maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))  # before --out is made
     check_writable(out / "results.json", "results")
