@@ -3,15 +3,16 @@
 Greedy scores a candidate by the target's path length to the goal (`GoalField`).  Behind
 the tunnel's wall that score is blind to where the arm can act: a push that leaves the
 target beside the opening's far edge looks as good as one that leaves it in front of the
-opening, although from the first no edge of the map pushes it on.  `push_counts` counts,
+opening, although from the first no edge of the map pushes it on.  `push_pairs` finds,
 for every reach cell, the edges of the map that can push a target there toward the goal:
 their start is clear of the scene's fixed obstacles (by `FIXED_MARGIN`), and before their
 first state within that margin one of the arm's table-checked capsules passes low over the
 cell (its lower end at most `height` above the table) moving within `max_angle` of the goal
-field's descent.  `push_weights` turns the counts into a cost multiplier per point of the
-table (1 where pushes toward the goal are as common as on the median cell, more where they
-are rarer), and `GoalField(weights=...)` integrates it along the path: the score becomes
-the cost of the cheapest way to the goal through places the map can push from.
+field's descent (`push_counts`: how many per cell).  `push_weights` turns the counts into
+a cost multiplier per point of the table (1 where pushes toward the goal are as common as
+on the median cell, more where they are rarer), and `GoalField(weights=...)` integrates it
+along the path: the score becomes the cost of the cheapest way to the goal through places
+the map can push from.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from .robot import Robot
 from .scenarios import Scenario
 
 STATES_PER_CALL = 200_000  # edge states read and checked per pass
-MEMO_ATTR = "_push_memo"  # kept on the bundle: (scenario, settings, ...) -> what was computed for it
+MEMO_ATTR = "_push_memo"  # kept on the bundle: (what, scenario, settings) -> what was computed for it
 
 
 def far_objects(sc: Scenario) -> np.ndarray:
@@ -42,37 +43,6 @@ def far_objects(sc: Scenario) -> np.ndarray:
     objs[:, 2] = 10.0
     objs[:, 3] = 1.0
     return objs
-
-
-def push_counts(
-    robot: Robot,
-    failure: Failure,
-    bundle: Bundle,
-    reach: ReachResult,
-    sc: Scenario,
-    field: GoalField,
-    max_angle: float = 45.0,
-    height: float = 0.05,
-) -> np.ndarray:
-    """(ny, nx) per reach cell: how many edges push toward the goal there (module docstring;
-    `push_pairs`), kept with the bundle for later calls."""
-    memo = bundle_memo(bundle)
-    key = ("counts", sc, max_angle, height, field.cell)
-    if key not in memo:
-        cells, _ = push_pairs(robot, failure, bundle, reach, sc, field, max_angle, height)
-        ny, nx = reach.labels.shape
-        memo[key] = np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
-    return memo[key]
-
-
-def bundle_memo(bundle: Bundle) -> dict:
-    """What was computed from this bundle's edges (the push counts, the weighted fields): it
-    lives as long as the bundle."""
-    memo = getattr(bundle, MEMO_ATTR, None)
-    if memo is None:
-        memo = {}
-        setattr(bundle, MEMO_ATTR, memo)
-    return memo
 
 
 def push_pairs(
@@ -154,6 +124,22 @@ def push_pairs(
         found.append(np.unique((cy[inside] * nx + cx[inside]) * width + e))  # each edge once per cell
     pairs = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
     return pairs // width, pairs % width
+
+
+def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
+    """(ny, nx) the pairs per reach cell: how many edges push toward the goal there."""
+    ny, nx = reach.labels.shape
+    return np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
+
+
+def bundle_memo(bundle: Bundle) -> dict:
+    """What was computed from this bundle's edges (the weighted fields): it lives as long as
+    the bundle."""
+    memo = getattr(bundle, MEMO_ATTR, None)
+    if memo is None:
+        memo = {}
+        setattr(bundle, MEMO_ATTR, memo)
+    return memo
 
 
 def push_weights(

@@ -1008,7 +1008,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     here with C MuJoCo's kinematics (each table-checked capsule's ends from its geom's pose):
     for a sample of the edges whose start is clear of the wall and roof, the same (cell, edge)
     pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
-    angle only adds pairs; the counts are the pairs per cell."""
+    angle only adds pairs; the planner's weighted score at least the path length, kept with
+    the map."""
     from lmjx.actions import FIXED_MARGIN
     from lmjx.goalfield import GoalField
     from lmjx.planner import table_bounds
@@ -1026,8 +1027,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     wide_cells, wide_edges = push_pairs(robot, m.failure, b, reach, sc, field, max_angle=90.0)
     ours_45 = set(zip(cells.tolist(), edges.tolist(), strict=True))
     assert ours_45 < set(zip(wide_cells.tolist(), wide_edges.tolist(), strict=True))
-    counts = push_counts(robot, m.failure, b, reach, sc, field)
-    np.testing.assert_array_equal(counts.ravel(), np.bincount(cells, minlength=ny * nx))
+    counts = push_counts(cells, reach)
+    assert counts.shape == (ny, nx) and counts.sum() == len(cells) and counts.max() > 1
     # the planner's score with a push weight: every metre costs at least 1, more where few push
     from lmjx.planner import _score_field
 
