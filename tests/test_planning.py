@@ -1010,7 +1010,6 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
     angle only adds pairs; the planner's weighted score at least the path length, kept with
     the map."""
-    from lmjx.actions import FIXED_MARGIN
     from lmjx.goalfield import GoalField
     from lmjx.planner import table_bounds
     from lmjx.pushfield import far_objects, push_counts, push_pairs
@@ -1052,10 +1051,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     ref = set()
     for e in sample:
         q = b.edge(int(e), ("q",))["q"].astype(np.float64)
-        prefix = len(q)
-        slack = tp.scene_slacks(q)[:, fixed].min(axis=1) + FIXED_MARGIN  # the clearance to the wall and roof
-        if (slack < FIXED_MARGIN).any():
-            prefix = int(np.argmax(slack < FIXED_MARGIN))
+        within = tp.scene_slacks(q)[:, fixed].min(axis=1) < 0  # within the wall's or roof's margin
+        prefix = int(np.argmax(within)) if within.any() else len(q)
         low = np.zeros((len(q), len(caps), 3))
         for k, qk in enumerate(q):
             d.qpos[:] = qk
