@@ -154,6 +154,27 @@ def after_executing(action: Action, trail: np.ndarray, dtype) -> tuple[np.ndarra
     return action.q[action.transit_steps :].astype(dtype), np.concatenate([trail, action.q])
 
 
+def cut_at_fixed(
+    fixed_clearance: np.ndarray | None,
+    owner: np.ndarray,
+    k: np.ndarray,
+    lengths: np.ndarray,
+    counted: np.ndarray | None = None,
+) -> np.ndarray:
+    """(n_edges,) how many states of each edge come before its first (counted) state within
+    FIXED_MARGIN of a fixed obstacle (`fixed_clearance`, per state of the edges concatenated;
+    None: no fixed obstacle), or all of them.  `owner`, `k`: each state's edge and index in
+    it.  The one cut an action makes at the wall; callers drop what keeps fewer than
+    MIN_EDGE_STATES states (`TransitPlanner.edge_prefixes`, `pushfield.push_pairs`)."""
+    prefix = np.asarray(lengths).copy()
+    if fixed_clearance is not None:
+        near = fixed_clearance < FIXED_MARGIN
+        if counted is not None:
+            near &= counted
+        np.minimum.at(prefix, owner[near], k[near])
+    return prefix
+
+
 class TransitPlanner:
     """Builds collision-free joint-space transits for one failure.
 
@@ -414,10 +435,7 @@ class TransitPlanner:
         k = np.arange(len(owner)) - first[owner]  # each state's index within its edge
         begin = np.zeros(len(qs), int) if first_state is None else np.asarray(first_state, int)
         counted = k >= begin[owner]
-        prefix = lengths.copy()
-        if fixed.any():
-            near = (c[:, fixed].min(axis=1) < FIXED_MARGIN) & counted
-            np.minimum.at(prefix, owner[near], k[near])
+        prefix = cut_at_fixed(c[:, fixed].min(axis=1) if fixed.any() else None, owner, k, lengths, counted)
         if self.acting:
             inside = counted & (k < prefix[owner])
             nearest = np.full(len(qs), np.inf)

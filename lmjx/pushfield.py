@@ -6,13 +6,14 @@ target beside the opening's far edge looks as good as one that leaves it in fron
 opening, although from the first no edge of the map pushes it on.  `push_pairs` finds,
 for every reach cell, the edges of the map that can push a target there toward the goal:
 their start is clear of the scene's fixed obstacles (by `FIXED_MARGIN`), and before their
-first state within that margin one of the arm's table-checked capsules passes low over the
-cell (its lower end at most `height` above the table) moving within `max_angle` of the goal
-field's descent (`push_counts`: how many per cell).  `push_weights` turns the counts into
-a cost multiplier per point of the table (1 where pushes toward the goal are as common as
-on the median cell, more where they are rarer), and `GoalField(weights=...)` integrates it
-along the path: the score becomes the cost of the cheapest way to the goal through places
-the map can push from.
+first state within that margin (the cut `actions.cut_at_fixed` makes; an edge left with
+fewer than MIN_EDGE_STATES states is never offered, nor counted) one of the arm's
+table-checked capsules passes low over the cell (its lower end at most `height` above the
+table) moving within `max_angle` of the goal field's descent (`push_counts`: how many per
+cell).  `push_weights` turns the counts into a cost multiplier per point of the table (1
+where pushes toward the goal are as common as on the median cell, more where rarer), and
+`GoalField(weights=...)` integrates it along the path: the score becomes the cost of the
+cheapest way to the goal through places the map can push from.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import ndimage
 
-from .actions import EDGE_BOXES, FIXED_MARGIN, TransitPlanner, _box_kernel
+from .actions import EDGE_BOXES, MIN_EDGE_STATES, TransitPlanner, _box_kernel, cut_at_fixed
 from .bundle import Bundle, capsule_ends_kernel
 from .failure import Failure
 from .goalfield import GoalField
@@ -96,11 +97,9 @@ def push_pairs(
         lens = lengths[es]
         owner = np.repeat(np.arange(len(es)), lens)
         k = np.arange(len(owner)) - np.concatenate([[0], np.cumsum(lens)[:-1]])[owner]
-        prefix = lens.copy()
-        if box_kernel is not None:
-            c = box_kernel.run(q)["box_clearance"][:, : len(fixed)]
-            near = c.min(axis=1) < FIXED_MARGIN
-            np.minimum.at(prefix, owner[near], k[near])
+        clearance = None if box_kernel is None else box_kernel.run(q)["box_clearance"][:, : len(fixed)].min(axis=1)
+        prefix = cut_at_fixed(clearance, owner, k, lens)
+        prefix[prefix < MIN_EDGE_STATES] = 0  # such an edge is never offered (`edge_prefixes`)
         ends = ends_kernel.run(q)
         a = ends["a"][:, caps].astype(np.float64)
         b = ends["b"][:, caps].astype(np.float64)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import cli
 
-from lmjx.actions import CONTROL_DT, TransitPlanner, controls, park_pose
+from lmjx.actions import CONTROL_DT, MIN_EDGE_STATES, TransitPlanner, controls, park_pose
 from lmjx.executor import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
 from lmjx.failure import parse_failure
 from lmjx.mapfile import load_map
@@ -440,7 +440,7 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     FIXED_MARGIN from a fixed obstacle too (an edge is cut short before its first state that
     does not, and kept only with MIN_EDGE_STATES states left); edges whose start lies against
     an object are not offered; acting edges act within their executed states."""
-    from lmjx.actions import ACT_DEPTH, FIXED_MARGIN, MIN_EDGE_STATES, OBJECT_MARGIN
+    from lmjx.actions import ACT_DEPTH, FIXED_MARGIN, OBJECT_MARGIN
     from lmjx.planner import edges_over_target
 
     m = load_map(plan_map)
@@ -492,7 +492,7 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
     is the edge's own states from there, FIXED_MARGIN clear of the fixed obstacles, and the
     transit keeps every margin.  Edges offered without the option are offered alike with it;
     no edge whose start is blocked by a movable object alone is entered late."""
-    from lmjx.actions import FIXED_MARGIN, LATE_TRIES, MIN_EDGE_STATES, OBJECT_MARGIN
+    from lmjx.actions import FIXED_MARGIN, LATE_TRIES, OBJECT_MARGIN
     from lmjx.planner import edges_over_target
 
     m = load_map(plan_map)
@@ -1053,6 +1053,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
         q = b.edge(int(e), ("q",))["q"].astype(np.float64)
         within = tp.scene_slacks(q)[:, fixed].min(axis=1) < 0  # within the wall's or roof's margin
         prefix = int(np.argmax(within)) if within.any() else len(q)
+        if prefix < MIN_EDGE_STATES:  # never offered: pushes nothing
+            continue
         low = np.zeros((len(q), len(caps), 3))
         for k, qk in enumerate(q):
             d.qpos[:] = qk
