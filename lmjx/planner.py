@@ -241,13 +241,12 @@ def _score_field(
     lo, hi = table_bounds(robot)
     if cfg.push_weight <= 0.0 or cfg.asm == "random":  # (Random scores nothing: no counts for it)
         return GoalField(sc, lo, hi)
-    from .pushfield import bundle_memo, push_counts, push_pairs, push_weights
+    from .pushfield import bundle_memo, cached_push_counts, push_weights
 
     memo = bundle_memo(bundle)  # the weighted field, once per bundle, scenario and weight
     key = ("field", sc, cfg.push_weight, cfg.target_margin)
     if key not in memo:
-        cells, _ = push_pairs(robot, failure, bundle, reach, sc, GoalField(sc, lo, hi))
-        counts = push_counts(cells, reach)
+        counts, _ = cached_push_counts(robot, failure, bundle, reach, sc, GoalField(sc, lo, hi))
         radius = float(sc.target.half[0]) + cfg.target_margin
         memo[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
     return memo[key]

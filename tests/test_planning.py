@@ -1082,6 +1082,52 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     assert len(ours ^ ref) <= max(2, len(ref) // 100), (len(ours), len(ref), sorted(ours ^ ref)[:5])
 
 
+def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
+    """`cached_push_counts`: computed once (the counts `push_pairs` gives), then read from the
+    cache folder without computing; another scenario, other edges or another robot model is
+    another file; a damaged file is computed again and replaced; the cache off: no file."""
+    import dataclasses
+
+    from lmjx import pushfield
+    from lmjx.goalfield import GoalField
+    from lmjx.planner import table_bounds
+
+    monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path))
+    m = load_map(plan_map)
+    b, reach = m.edges, m.reach
+    sc = scenario(2, tasks="hard")
+    field = GoalField(sc, *table_bounds(robot))
+    counts, path = pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)
+    assert path is not None and path.parent == tmp_path / "pushes" and path.exists()
+    cells, _ = pushfield.push_pairs(robot, m.failure, b, reach, sc, field)
+    assert np.array_equal(counts, pushfield.push_counts(cells, reach)) and counts.sum() > 100
+
+    def computing(*args, **kwargs):
+        raise AssertionError("computed again")
+
+    real = pushfield.push_pairs
+    monkeypatch.setattr(pushfield, "push_pairs", computing)
+    again, same = pushfield.cached_push_counts(robot, m.failure, load_map(plan_map).edges, reach, sc, field)
+    assert same == path and np.array_equal(again, counts)
+    key = pushfield.counts_key(robot, b, reach, sc, 45.0, 0.05)
+    assert path.stem == key
+    other_edges = dataclasses.replace(b, q_start=b.q_start + np.float32(1e-3))
+    other_model = dataclasses.replace(robot, model_hash="0" * 64)
+    for k in (
+        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), 45.0, 0.05),
+        pushfield.counts_key(robot, other_edges, reach, sc, 45.0, 0.05),
+        pushfield.counts_key(other_model, b, reach, sc, 45.0, 0.05),
+        pushfield.counts_key(robot, b, reach, sc, 90.0, 0.05),
+    ):
+        assert k != key
+    path.write_bytes(b"not an array")
+    monkeypatch.setattr(pushfield, "push_pairs", real)
+    fixed, where = pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)
+    assert where == path and np.array_equal(fixed, counts) and np.array_equal(np.load(path), counts)
+    monkeypatch.setenv("LMJX_CACHE_DIR", "off")
+    assert pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)[1] is None
+
+
 def test_a_report_says_the_settings_its_trials_ran_with():
     """A report rewritten from merged runs (a config that does not know their settings) takes
     the settings from the trials' records: one line where they agree, one per set where not."""
