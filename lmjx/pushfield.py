@@ -147,7 +147,9 @@ def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
     return np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
 
 
-def counts_key(robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, max_angle: float, height: float) -> str:
+def counts_key(
+    robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField, max_angle: float, height: float
+) -> str:
     """What the push counts of this map and scenario are computed from, hashed: the cache's
     file name (`cached_push_counts`)."""
     import jax
@@ -163,7 +165,8 @@ def counts_key(robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, m
     ):
         h.update(text.encode())
         h.update(b"\0")
-    for a in (reach.xs, reach.ys, bundle.length, bundle.q_start, bundle.twist, bundle.duration, bundle.site):
+    arrays = (reach.xs, reach.ys, field.values, np.asarray(field.lo), np.asarray(field.cell))
+    for a in (*arrays, bundle.length, bundle.q_start, bundle.twist, bundle.duration, bundle.site):
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()[:40]
 
@@ -183,7 +186,7 @@ def cached_push_counts(
     written there, atomically, when not; the cache turned off: computed every time).  Also
     the file (None without a cache).  A file that cannot be read is computed again."""
     folder = cache_dir()
-    key = counts_key(robot, bundle, reach, sc, max_angle, height)
+    key = counts_key(robot, bundle, reach, sc, field, max_angle, height)
     path = None if folder is None else folder / "pushes" / f"{key}.npy"
     if path is not None and path.exists():
         try:

@@ -1084,8 +1084,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
 
 def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
     """`cached_push_counts`: computed once (the counts `push_pairs` gives), then read from the
-    cache folder without computing; another scenario, other edges or another robot model is
-    another file; a damaged file is computed again and replaced; the cache off: no file."""
+    cache folder without computing; another scenario, other edges, another robot model, angle
+    or goal field is another file; a damaged file is computed again and replaced; the cache off: no file."""
     import dataclasses
 
     from lmjx import pushfield
@@ -1109,15 +1109,17 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     monkeypatch.setattr(pushfield, "push_pairs", computing)
     again, same = pushfield.cached_push_counts(robot, m.failure, load_map(plan_map).edges, reach, sc, field)
     assert same == path and np.array_equal(again, counts)
-    key = pushfield.counts_key(robot, b, reach, sc, 45.0, 0.05)
+    key = pushfield.counts_key(robot, b, reach, sc, field, 45.0, 0.05)
     assert path.stem == key
     other_edges = dataclasses.replace(b, q_start=b.q_start + np.float32(1e-3))
     other_model = dataclasses.replace(robot, model_hash="0" * 64)
+    doubled = GoalField(sc, *table_bounds(robot), weights=lambda p: np.full(len(p), 2.0))
     for k in (
-        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), 45.0, 0.05),
-        pushfield.counts_key(robot, other_edges, reach, sc, 45.0, 0.05),
-        pushfield.counts_key(other_model, b, reach, sc, 45.0, 0.05),
-        pushfield.counts_key(robot, b, reach, sc, 90.0, 0.05),
+        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), field, 45.0, 0.05),
+        pushfield.counts_key(robot, other_edges, reach, sc, field, 45.0, 0.05),
+        pushfield.counts_key(other_model, b, reach, sc, field, 45.0, 0.05),
+        pushfield.counts_key(robot, b, reach, sc, field, 90.0, 0.05),
+        pushfield.counts_key(robot, b, reach, sc, doubled, 45.0, 0.05),
     ):
         assert k != key
     path.write_bytes(b"not an array")
