@@ -241,12 +241,17 @@ def _score_field(
     lo, hi = table_bounds(robot)
     if cfg.push_weight <= 0.0 or cfg.asm == "random":  # (Random scores nothing: no counts for it)
         return GoalField(sc, lo, hi)
-    from .pushfield import bundle_memo, cached_push_counts, push_weights
+    from .pushfield import bundle_memo, cached_counts, counts_key, push_counts, push_pairs, push_weights
 
     memo = bundle_memo(bundle)  # the weighted field, once per bundle, scenario and weight
     key = ("field", sc, cfg.push_weight, cfg.target_margin)
     if key not in memo:
-        counts, _ = cached_push_counts(robot, failure, bundle, reach, sc, GoalField(sc, lo, hi))
+        plain = GoalField(sc, lo, hi)
+        counts, _ = cached_counts(
+            counts_key(robot, bundle, reach, sc, plain),
+            reach.labels.shape,
+            lambda: push_counts(push_pairs(robot, failure, bundle, reach, sc, plain, progress=True)[0], reach),
+        )
         radius = float(sc.target.half[0]) + cfg.target_margin
         memo[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
     return memo[key]

@@ -15,7 +15,7 @@ where pushes toward the goal are as common as on the median cell, more where rar
 `GoalField(weights=...)` integrates it along the path: the score becomes the cost of the
 cheapest way to the goal through places the map can push from.
 
-The counts take minutes for a map of 1,000,000 edges on a CPU: `cached_push_counts` keeps
+The counts take minutes for a map of 1,000,000 edges on a CPU: `cached_counts` keeps
 them in lmjx's cache folder (`lmjx.cache`, `<dir>/pushes`), keyed by what they are computed
 from (the robot's model, the edges' starts, twists and durations, the reach grid, the
 scenario, the settings below, JAX's platform), so a map and scenario pay them once.
@@ -43,6 +43,8 @@ from .reach import ReachResult
 from .robot import Robot
 from .scenarios import Scenario
 
+MAX_ANGLE = 45.0  # [deg] a capsule's motion counts as toward the goal within this of the field's descent
+HEIGHT = 0.05  # [m] ... when its lower end is at most this above the table
 STATES_PER_CALL = 200_000  # edge states read and checked per pass
 COUNTS_VERSION = 2  # what the cached counts mean (2: edges cut at the wall as actions are)
 MEMO_ATTR = "_push_memo"  # kept on the bundle: (what, scenario, settings) -> what was computed for it
@@ -65,8 +67,8 @@ def push_pairs(
     reach: ReachResult,
     sc: Scenario,
     field: GoalField,
-    max_angle: float = 45.0,
-    height: float = 0.05,
+    max_angle: float = MAX_ANGLE,
+    height: float = HEIGHT,
     progress: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cell, edge) pairs, unique, cells numbered iy * nx + ix: the edges that push toward the
@@ -148,10 +150,16 @@ def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
 
 
 def counts_key(
-    robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField, max_angle: float, height: float
+    robot: Robot,
+    bundle: Bundle,
+    reach: ReachResult,
+    sc: Scenario,
+    field: GoalField,
+    max_angle: float = MAX_ANGLE,
+    height: float = HEIGHT,
 ) -> str:
     """What the push counts of this map and scenario are computed from, hashed: the cache's
-    file name (`cached_push_counts`)."""
+    file name (`cached_counts`)."""
     import jax
 
     how = {k: v for k, v in dataclasses.asdict(bundle.config).items() if k not in ("chunk", "build_chunk")}
@@ -171,32 +179,21 @@ def counts_key(
     return h.hexdigest()[:40]
 
 
-def cached_push_counts(
-    robot: Robot,
-    failure: Failure,
-    bundle: Bundle,
-    reach: ReachResult,
-    sc: Scenario,
-    field: GoalField,
-    max_angle: float = 45.0,
-    height: float = 0.05,
-    progress: bool = True,
-) -> tuple[np.ndarray, Path | None]:
-    """`push_counts` of `push_pairs`, read from lmjx's cache folder when it holds them (and
-    written there, atomically, when not; the cache turned off: computed every time).  Also
-    the file (None without a cache).  A file that cannot be read is computed again."""
+def cached_counts(key: str, shape: tuple, compute: Callable[[], np.ndarray]) -> tuple[np.ndarray, Path | None]:
+    """The push counts filed under `key` (`counts_key`) in lmjx's cache folder, or `compute()`
+    written there atomically (the cache turned off: computed every time); also the file
+    (None without one).  A file that cannot be read, or not counts of `shape`, is computed
+    again."""
     folder = cache_dir()
-    key = counts_key(robot, bundle, reach, sc, field, max_angle, height)
     path = None if folder is None else folder / "pushes" / f"{key}.npy"
     if path is not None and path.exists():
         try:
             counts = np.load(path, allow_pickle=False)
-            if counts.shape == reach.labels.shape and counts.dtype.kind in "iu":
+            if counts.shape == tuple(shape) and counts.dtype.kind in "iu":
                 return counts, path
         except (OSError, ValueError):
             pass
-    cells, _ = push_pairs(robot, failure, bundle, reach, sc, field, max_angle, height, progress=progress)
-    counts = push_counts(cells, reach)
+    counts = compute()
     if path is not None:
         try:
             with atomic_path(path) as tmp, open(tmp, "wb") as f:

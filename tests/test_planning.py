@@ -1083,51 +1083,59 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
 
 
 def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
-    """`cached_push_counts`: computed once (the counts `push_pairs` gives), then read from the
-    cache folder without computing; another scenario, other edges, another robot model, angle
-    or goal field is another file; a damaged file is computed again and replaced; the cache off: no file."""
+    """The planner's push counts (`pushfield.cached_counts`): computed once (the counts
+    `push_pairs` gives), then read from the cache folder by another process's bundle without
+    computing, the same weighted score; another scenario, other edges, another robot model,
+    angle or goal field is another file; a damaged file or one of another shape is computed
+    again and replaced; the cache off: no file."""
     import dataclasses
 
     from lmjx import pushfield
     from lmjx.goalfield import GoalField
-    from lmjx.planner import table_bounds
+    from lmjx.planner import _score_field, table_bounds
 
     monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path))
     m = load_map(plan_map)
     b, reach = m.edges, m.reach
     sc = scenario(2, tasks="hard")
     field = GoalField(sc, *table_bounds(robot))
-    counts, path = pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)
-    assert path is not None and path.parent == tmp_path / "pushes" and path.exists()
+    key = pushfield.counts_key(robot, b, reach, sc, field)
+    path = tmp_path / "pushes" / f"{key}.npy"
+    weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
     cells, _ = pushfield.push_pairs(robot, m.failure, b, reach, sc, field)
-    assert np.array_equal(counts, pushfield.push_counts(cells, reach)) and counts.sum() > 100
+    counts = pushfield.push_counts(cells, reach)
+    assert path.exists() and np.array_equal(np.load(path), counts) and counts.sum() > 100
 
     def computing(*args, **kwargs):
         raise AssertionError("computed again")
 
     real = pushfield.push_pairs
     monkeypatch.setattr(pushfield, "push_pairs", computing)
-    again, same = pushfield.cached_push_counts(robot, m.failure, load_map(plan_map).edges, reach, sc, field)
-    assert same == path and np.array_equal(again, counts)
-    key = pushfield.counts_key(robot, b, reach, sc, field, 45.0, 0.05)
-    assert path.stem == key
+    fresh = load_map(plan_map).edges  # another bundle: nothing memoized on it
+    again = _score_field(robot, m.failure, reach, fresh, sc, PlannerConfig(push_weight=1.0))
+    pts = np.random.default_rng(2).uniform([0.2, 0.0], [0.7, 0.5], (200, 2))
+    assert again is not weighted and np.array_equal(again(pts), weighted(pts))
     other_edges = dataclasses.replace(b, q_start=b.q_start + np.float32(1e-3))
     other_model = dataclasses.replace(robot, model_hash="0" * 64)
     doubled = GoalField(sc, *table_bounds(robot), weights=lambda p: np.full(len(p), 2.0))
     for k in (
-        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), field, 45.0, 0.05),
-        pushfield.counts_key(robot, other_edges, reach, sc, field, 45.0, 0.05),
-        pushfield.counts_key(other_model, b, reach, sc, field, 45.0, 0.05),
-        pushfield.counts_key(robot, b, reach, sc, field, 90.0, 0.05),
-        pushfield.counts_key(robot, b, reach, sc, doubled, 45.0, 0.05),
+        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), field),
+        pushfield.counts_key(robot, other_edges, reach, sc, field),
+        pushfield.counts_key(other_model, b, reach, sc, field),
+        pushfield.counts_key(robot, b, reach, sc, field, max_angle=90.0),
+        pushfield.counts_key(robot, b, reach, sc, doubled),
     ):
         assert k != key
-    path.write_bytes(b"not an array")
     monkeypatch.setattr(pushfield, "push_pairs", real)
-    fixed, where = pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)
-    assert where == path and np.array_equal(fixed, counts) and np.array_equal(np.load(path), counts)
+    for damage in (b"not an array", None):
+        if damage is None:
+            np.save(path, np.zeros((3, 3), np.int64))  # counts of another grid
+        else:
+            path.write_bytes(damage)
+        fixed, where = pushfield.cached_counts(key, counts.shape, lambda: counts)
+        assert where == path and np.array_equal(fixed, counts) and np.array_equal(np.load(path), counts)
     monkeypatch.setenv("LMJX_CACHE_DIR", "off")
-    assert pushfield.cached_push_counts(robot, m.failure, b, reach, sc, field, progress=False)[1] is None
+    assert pushfield.cached_counts(key, counts.shape, lambda: counts)[1] is None
 
 
 def test_a_report_says_the_settings_its_trials_ran_with():
