@@ -149,23 +149,15 @@ def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
     return np.bincount(cells, minlength=ny * nx).reshape(ny, nx)
 
 
-def counts_key(
-    robot: Robot,
-    bundle: Bundle,
-    reach: ReachResult,
-    sc: Scenario,
-    field: GoalField,
-    max_angle: float = MAX_ANGLE,
-    height: float = HEIGHT,
-) -> str:
-    """What the push counts of this map and scenario are computed from, hashed: the cache's
-    file name (`cached_counts`)."""
+def counts_key(robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField) -> str:
+    """What the push counts of this map and scenario are computed from (`push_pairs` with its
+    default MAX_ANGLE and HEIGHT), hashed: the cache's file name (`cached_counts`)."""
     import jax
 
     how = {k: v for k, v in dataclasses.asdict(bundle.config).items() if k not in ("chunk", "build_chunk")}
     h = hashlib.sha256()
     for text in (
-        f"v{COUNTS_VERSION} {FIXED_MARGIN} {MIN_EDGE_STATES} {max_angle} {height} {jax.default_backend()}",
+        f"v{COUNTS_VERSION} {FIXED_MARGIN} {MIN_EDGE_STATES} {MAX_ANGLE} {HEIGHT} {jax.default_backend()}",
         robot.model_hash,
         repr(sorted(how.items())),
         repr(sc),

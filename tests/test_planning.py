@@ -1085,8 +1085,8 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
 def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
     """The planner's push counts (`pushfield.cached_counts`): computed once (the counts
     `push_pairs` gives), then read from the cache folder by another process's bundle without
-    computing, the same weighted score; another scenario, other edges, another robot model,
-    angle or goal field is another file; a damaged file or one of another shape is computed
+    computing, the same weighted score; another scenario, other edges, another robot model or
+    goal field is another file; a damaged file or one of another shape is computed
     again and replaced; the cache off: no file."""
     import dataclasses
 
@@ -1122,7 +1122,6 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
         pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), field),
         pushfield.counts_key(robot, other_edges, reach, sc, field),
         pushfield.counts_key(other_model, b, reach, sc, field),
-        pushfield.counts_key(robot, b, reach, sc, field, max_angle=90.0),
         pushfield.counts_key(robot, b, reach, sc, doubled),
     ):
         assert k != key
