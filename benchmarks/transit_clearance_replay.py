@@ -4,13 +4,16 @@ the planned joint targets' (the "real" world's own model, kinematics only); for 
 that touches one, its joints' tracking error and speed.  The ninth session's diagnostic of
 the one transit that touched the roof (docs/EVALUATION.md, "The ninth session"):
 
-    python benchmarks/transit_clearance_replay.py      # CPU-built 1,000,000-edge map in /tmp/maps1m
+    python benchmarks/transit_clearance_replay.py MAPS [--log FILE]
 
-It checks the trial took the recorded edges (benchmarks/tunnel_push_weight2_h100_2026-11-26/
-cpu_eval_w1.json) and writes /tmp/s9/diag_log2.json.
+MAPS: the folder holding the CPU-built 1,000,000-edge case2.h5 the trial ran on.  It checks
+the trial took the recorded edges (benchmarks/tunnel_push_weight2_h100_2026-11-26/
+cpu_eval_w1.json); `--log`: every transit's figures as JSON too.
 """
 
+import argparse
 import json
+import tempfile
 from pathlib import Path
 
 import mujoco
@@ -54,6 +57,7 @@ def execute(self, action):
     limit = action.transit_steps * sub
     track = []
     qadr = np.array(adr)
+    vadr = np.array([int(m.joint(n).dofadr[0]) for n in self.robot.joint_names])
 
     def on_step(mod, d):
         if len(real) < limit:
@@ -62,7 +66,7 @@ def execute(self, action):
             track.append(
                 (
                     float(np.abs(d.qpos[qadr] - action.q[k]).max()),
-                    float(np.abs(d.qvel[[int(m.joint(n).dofadr[0]) for n in self.robot.joint_names]]).max()),
+                    float(np.abs(d.qvel[vadr]).max()),
                 )
             )
 
@@ -101,9 +105,13 @@ def execute(self, action):
     return obs
 
 
+ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+ap.add_argument("maps", type=Path, help="folder of case2.h5: the map the trial ran on")
+ap.add_argument("--log", type=Path, help="JSON written: every transit's figures")
+args = ap.parse_args()
 executor.SimulatedRealWorld.execute = execute
 robot = load_robot("panda")
-maps = load_maps(robot, ("case2",), Path("/tmp/maps1m"))
+maps = load_maps(robot, ("case2",), args.maps)
 cfg = EvalConfig(
     tasks="hard",
     failures=("case2",),
@@ -114,9 +122,10 @@ cfg = EvalConfig(
     planner=PlannerConfig(push_weight=1.0),
     backend="cpu",
 )
-recs = evaluate(robot, maps, cfg, Path("/tmp/s9/diag_out2"), progress=False)
+with tempfile.TemporaryDirectory() as out:
+    recs = evaluate(robot, maps, cfg, Path(out), progress=False)
 rec = json.loads((Path(__file__).parent / "tunnel_push_weight2_h100_2026-11-26" / "cpu_eval_w1.json").read_text())
 r = next(x for x in rec if x["seed"] == 2011)
 print("same edges as recorded:", [s["edge"] for s in recs[0]["steps"]] == [s["edge"] for s in r["steps"]])
-Path("/tmp/s9").mkdir(exist_ok=True)
-Path("/tmp/s9/diag_log2.json").write_text(json.dumps(log, indent=1))
+if args.log is not None:
+    args.log.write_text(json.dumps(log, indent=1))

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from .actions import EDGE_BOXES, FIXED_MARGIN, MIN_EDGE_STATES, TransitPlanner, _box_kernel, cut_at_fixed
+from .batching import backend
 from .bundle import Bundle, capsule_ends_kernel
 from .cache import cache_dir
 from .failure import Failure
@@ -152,12 +153,10 @@ def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
 def counts_key(robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField) -> str:
     """What the push counts of this map and scenario are computed from (`push_pairs` with its
     default MAX_ANGLE and HEIGHT), hashed: the cache's file name (`cached_counts`)."""
-    import jax
-
     how = {k: v for k, v in dataclasses.asdict(bundle.config).items() if k not in ("chunk", "build_chunk")}
     h = hashlib.sha256()
     for text in (
-        f"v{COUNTS_VERSION} {FIXED_MARGIN} {MIN_EDGE_STATES} {MAX_ANGLE} {HEIGHT} {jax.default_backend()}",
+        f"v{COUNTS_VERSION} {FIXED_MARGIN} {MIN_EDGE_STATES} {MAX_ANGLE} {HEIGHT} {backend()}",
         robot.model_hash,
         repr(sorted(how.items())),
         repr(sc),

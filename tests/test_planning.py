@@ -1101,15 +1101,25 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     field = GoalField(sc, *table_bounds(robot))
     key = pushfield.counts_key(robot, b, reach, sc, field)
     path = tmp_path / "pushes" / f"{key}.npy"
+    real = pushfield.push_pairs
+    computed = []  # the planner's push_pairs calls: (arguments, result)
+
+    def spy(*args, **kwargs):
+        computed.append((args, kwargs, real(*args, **kwargs)))
+        return computed[-1][2]
+
+    monkeypatch.setattr(pushfield, "push_pairs", spy)
     weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
-    cells, _ = pushfield.push_pairs(robot, m.failure, b, reach, sc, field)
+    assert len(computed) == 1  # computed once, for this map, scenario, goal field and the default settings
+    args, kwargs, (cells, _) = computed[0]
+    assert args[2] is b and args[4] == sc and np.array_equal(args[5].values, field.values)
+    assert len(args) == 6 and set(kwargs) <= {"progress"}
     counts = pushfield.push_counts(cells, reach)
     assert path.exists() and np.array_equal(np.load(path), counts) and counts.sum() > 100
 
     def computing(*args, **kwargs):
         raise AssertionError("computed again")
 
-    real = pushfield.push_pairs
     monkeypatch.setattr(pushfield, "push_pairs", computing)
     fresh = load_map(plan_map).edges  # another bundle: nothing memoized on it
     again = _score_field(robot, m.failure, reach, fresh, sc, PlannerConfig(push_weight=1.0))
