@@ -610,9 +610,11 @@ def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
-    layout = sample_layout(sc, 5)
+    # seed 13: a push whose way back along its edge is clear (seed 5 until transits came to
+    # rest at the edge's start, lmjx.timing: its push now ends where backing out goes deeper)
+    layout = sample_layout(sc, 13)
     tp = TransitPlanner(robot, m.failure, batched=True)
-    world = SimulatedRealWorld(robot, 5)
+    world = SimulatedRealWorld(robot, 13)
     obs = world.reset(layout, tp.park)
     tp.set_scene(sc, obs.objects)
     first = tp.actions(m.edges, edges_over_target(m.edges, m.reach, obs.objects[0, :2], 0.05, 0.01), obs.robot_q, 1)
