@@ -3,10 +3,10 @@ edge itself, as joint targets at the control rate; and the servo controls a simu
 applies at its physics rate.
 
 The transit is a straight line in joint space, timed so that no joint exceeds half its
-velocity limit, starting and ending at rest (`lmjx.timing`: a chain of lines stops at each
-corner, where the real arm's servos would otherwise overshoot); when that line would take
-the arm into the table or into itself (checked with C MuJoCo at every control step, or by
-lmjx's clearance kernel), or within
+velocity limit (a chain of lines slows to rest into each sharp corner and speeds up out of
+it: `lmjx.timing`, applied to the whole transit once it is built); when that line would
+take the arm into the table or into itself (checked with C MuJoCo at every control step, or
+by lmjx's clearance kernel), or within
 `OBJECT_MARGIN` of a movable object or `FIXED_MARGIN` of a fixed obstacle (the planner's
 whole scene at its observed poses, `set_scene`; lmjx's box-clearance kernel, batched over
 every configuration of every candidate), it retreats first: up to the failure's park pose
@@ -51,7 +51,7 @@ from .failure import Failure
 from .roadmap import Roadmap
 from .robot import Robot
 from .scene import yaw_quat
-from .timing import ramp_time, ramped
+from .timing import retime
 
 CONTROL_DT = 0.02  # the edges' control period [s]
 OBJECT_MARGIN = 0.01  # a transit keeps this far from every movable object [m]
@@ -344,19 +344,18 @@ class TransitPlanner:
         """(n,) table, arm or scene in the way at each configuration."""
         return self.colliding_batch(qs) | self.scene_blocked(qs)
 
-    def _timing(self, dq: np.ndarray, slow: np.ndarray | bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Control steps (n,) of straight transits dq (n, nj), collision checks along them (at
-        least one per control step and one per 0.02 rad of the largest joint motion), and
-        their time at constant speed (n,) [s] (`ramped` turns it into the targets).  `slow`
-        (per transit): at NEAR_SPEED of the transits' speed (they begin inside the scene's
-        margins, where the real arm's tracking error at full speed, up to 8 mm on
+    def _timing(self, dq: np.ndarray, slow: np.ndarray | bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Control steps (n,) of straight transits dq (n, nj), and collision checks along them:
+        at least one per control step and one per 0.02 rad of the largest joint motion.
+        `slow` (per transit): at NEAR_SPEED of the transits' speed (they begin inside the
+        scene's margins, where the real arm's tracking error at full speed, up to 8 mm on
         calibration trials, turns near misses into contacts)."""
         span = np.max(np.abs(dq), axis=-1)
         speed = np.where(np.asarray(slow)[..., None], NEAR_SPEED, 1.0) * self.speed
         t = np.maximum(np.max(np.abs(dq) / speed, axis=-1), 2 * CONTROL_DT)
-        n = np.ceil(ramp_time(t) / CONTROL_DT - 1e-9).astype(int)
+        n = np.ceil(t / CONTROL_DT).astype(int)
         fine = np.maximum(n, np.ceil(span / 0.02).astype(int))
-        return n, fine, t
+        return n, fine
 
     def segment(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray | None:
         """Joint targets (T, nq) from q0 (exclusive) to q1 (inclusive), or None if blocked."""
@@ -372,7 +371,7 @@ class TransitPlanner:
             return []
         dq = q1 - q0
         start_slack = self.scene_slacks(q0)
-        n, fine, t = self._timing(dq, (start_slack.min(axis=1, initial=np.inf) < 0) | (self._relax > 0))
+        n, fine = self._timing(dq, (start_slack.min(axis=1, initial=np.inf) < 0) | (self._relax > 0))
         owner = np.repeat(np.arange(len(q0)), fine)
         first = np.concatenate([[0], np.cumsum(fine)[:-1]])
         k = np.arange(len(owner)) - first[owner] + 1
@@ -396,7 +395,7 @@ class TransitPlanner:
             ):
                 out.append(None)
             else:
-                out.append(q0[i] + np.outer(ramped(t[i], n[i]), dq[i]))
+                out.append(q0[i] + np.outer(np.arange(1, n[i] + 1) / n[i], dq[i]))
         return out
 
     def edges_usable(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
@@ -539,7 +538,7 @@ class TransitPlanner:
         the table and the arm forbid it."""
         way = np.asarray([q_now, *(back[:-1] if every else _spaced(q_now, back[:-1])), back[-1]])
         dq = np.diff(way, axis=0)
-        n, fine, t = self._timing(dq, True)
+        n, fine = self._timing(dq, True)
         checks = np.concatenate([way[i] + np.outer(np.arange(1, f + 1) / f, dq[i]) for i, f in enumerate(fine)])
         both = np.concatenate([q_now[None], checks])
         slack = self.scene_slacks(both)
@@ -547,7 +546,7 @@ class TransitPlanner:
         free_before = np.logical_or.accumulate(~hits[:-1])
         if hits[-1] or np.any(hits[1:] & free_before) or not self._leaves_cleanly(slack[0], slack[1:]):
             return None
-        return np.concatenate([way[i] + np.outer(ramped(t[i], k), dq[i]) for i, k in enumerate(n)])
+        return np.concatenate([way[i] + np.outer(np.arange(1, k + 1) / k, dq[i]) for i, k in enumerate(n)])
 
     def escape(self, q_now: np.ndarray) -> np.ndarray | None:
         """Joint targets (T, nq) taking the arm out of the scene's margins when it stands
@@ -849,6 +848,7 @@ def _action(
     first: int = 0,
 ) -> Action:
     states = bundle.edge(edge, ("q", "qd"))
+    transit = retime(q_now, transit, CONTROL_DT)  # at rest at each sharp corner
     q_edge = states["q"][first:states_used].astype(np.float64)
     qd_edge = states["qd"][first:states_used].astype(np.float64)
     qd_transit = np.gradient(np.concatenate([q_now[None], transit]), CONTROL_DT, axis=0)[1:]

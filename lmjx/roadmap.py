@@ -8,8 +8,7 @@ nodes for the same map), configurations the arm reaches low over the table, free
 table and of itself, plus the failure's park pose; each node is linked to its `K` nearest
 (in transit time: the largest joint motion over its speed), and the pieces this leaves
 apart joined by their shortest links (`BRIDGES`).  A query finds, for many goals
-at once (the starts of the candidate edges), the fastest way from where the arm stands (the
-arm stops at every waypoint: each link costs its `lmjx.timing.ramp_time`):
+at once (the starts of the candidate edges), the fastest way from where the arm stands:
 
 1. nodes inside the scene's margins are dropped (one batch); the source is linked to its
    `SOURCE_K` nearest nodes, each goal to its `GOAL_K` nearest; given the way the arm came
@@ -34,8 +33,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
-
-from .timing import ramp_time, ramped
 
 if TYPE_CHECKING:
     from .actions import TransitPlanner
@@ -169,7 +166,7 @@ class Roadmap:
         frm = np.concatenate([la, lb, np.array([a for a, _, _ in links], np.int64)])
         to = np.concatenate([lb, la, np.array([b for _, b, _ in links], np.int64)])
         time = np.concatenate([lt, lt, np.array([t for _, _, t in links], np.float64)])
-        time = np.maximum(ramp_time(time), 1e-9)  # each link from rest to rest; csgraph reads an explicit 0 as no link
+        time = np.maximum(time, 1e-9)  # csgraph reads an explicit 0 as no link
         q_of = np.concatenate([self.q, source[None], goals, trail])  # configuration of each graph id
         segs: dict[tuple[int, int], np.ndarray | None] = {}  # checked links (directed as checked)
         n_graph = m + 1 + len(goals) + len(trail)
@@ -267,8 +264,8 @@ class Roadmap:
         if segs.get((b, a)) is not None:
             back = segs[(b, a)]
             return np.concatenate([q_of[b][None], back[:-1]])[::-1]
-        n, _, t = self.t._timing((q_of[b] - q_of[a])[None])
-        return q_of[a] + np.outer(ramped(float(t[0]), int(n[0])), q_of[b] - q_of[a])
+        n, _ = self.t._timing((q_of[b] - q_of[a])[None])
+        return q_of[a] + np.outer(np.arange(1, n[0] + 1) / n[0], q_of[b] - q_of[a])
 
     def _shorten(self, found: dict[int, list[int]], q_of: np.ndarray, segs: dict, m: int) -> dict[int, list[int]]:
         """Each path's fastest chain of straight lines between its nodes (every pair that is
@@ -295,7 +292,7 @@ class Roadmap:
                 for i in range(j):
                     if best[i] == np.inf or not self._known((path[i], path[j]), segs):
                         continue
-                    t = best[i] + float(ramp_time(transit_time(q_of[path[i]], q_of[path[j]], self.speed)))
+                    t = best[i] + float(transit_time(q_of[path[i]], q_of[path[j]], self.speed))
                     if t < best[j]:
                         best[j], came[j] = t, i
             chain = [n - 1]

@@ -31,10 +31,10 @@ written on the AVX-512 CPU.  A sixth, 2026-11-25 (issue 19, transits brushing ob
 transit leaving a contact may come only 0.2 mm nearer than it began (was 1 mm) and moves at a
 tenth of the transits' speed inside the margins (was a quarter); the same edges, Lazy's and
 Greedy's execution 7.70 -> 8.42 s, final distances within 6 um of the previous ones.  A
-seventh, 2026-11-27 (issue 19, a transit that touched the tunnel's roof): every straight
-piece of a transit starts and ends at rest (`lmjx.timing`, RAMP 0.4 s); the same edges in
-all three trials, execution 3.78 -> 4.18 s (Random) and 8.42 -> 10.42 s (Lazy, Greedy),
-final distances 0.41 mm and 0.69 mm further from the goal.
+seventh, 2026-11-27 (issue 19, a transit that touched the tunnel's roof): a transit slows to
+rest into each sharp corner of its path and speeds up out of it (`lmjx.timing`); Random's
+transit has none and is as it was; Lazy's and Greedy's second transit (the retreat, then on)
+has one: the same edges, execution 8.42 -> 8.82 s, final distances 1 nm apart.
 """
 
 from __future__ import annotations
