@@ -4,14 +4,20 @@ the planned joint targets' (the "real" world's own model, kinematics only); for 
 that touches one, its joints' tracking error and speed.  The ninth session's diagnostic of
 the one transit that touched the roof (docs/EVALUATION.md, "The ninth session"):
 
-    python benchmarks/transit_clearance_replay.py MAPS [--log FILE]
+    python benchmarks/transit_clearance_replay.py MAPS [--log FILE] [--law constant|retimed]
 
 MAPS: the folder holding the CPU-built 1,000,000-edge case2.h5 the trial ran on.  It checks
 the trial took the recorded edges (benchmarks/tunnel_push_weight2_h100_2026-11-26/
-cpu_eval_w1.json); `--log`: every transit's figures as JSON too.
+cpu_eval_w1.json); `--log`: every transit's figures as JSON too.  `--law constant` (the
+default) plans and executes the transits at constant speed, as the ninth session did (the
+trial is then the recorded one), and executes each transit a second time from the same state
+as `lmjx.timing.retime` times it (the present law: slowing to rest into sharp corners), its
+least distance printed beside ("retimed_min"); `--law retimed` runs the trial as the present
+code does (it takes other edges from the first transit with a sharp corner on).
 """
 
 import argparse
+import copy
 import json
 import tempfile
 from pathlib import Path
@@ -19,10 +25,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from lmjx import executor
+from lmjx import actions, executor
+from lmjx.actions import CONTROL_DT, Action, controls
 from lmjx.evaluate import EvalConfig, evaluate, load_maps
 from lmjx.planner import PlannerConfig
 from lmjx.robot import load_robot
+from lmjx.timing import retime
 
 log = []
 orig = executor.SimulatedRealWorld.execute
@@ -70,6 +78,19 @@ def execute(self, action):
                 )
             )
 
+    retimed_min = None
+    if args.law == "constant" and action.transit_steps:  # the same transit, retimed, from the same state
+        d3 = copy.deepcopy(self.data)
+        q_now = self.data.qpos[qadr].copy()
+        timed = retime(q_now, action.q[: action.transit_steps], CONTROL_DT)
+        qd = np.gradient(np.concatenate([q_now[None], timed]), CONTROL_DT, axis=0)[1:]
+        alone = Action(edge=action.edge, q=timed, qd=qd, transit_steps=len(timed), via_park=False, route="x")
+        retimed_min = np.inf
+        for u in controls(alone, m.opt.timestep, 0.3):
+            d3.ctrl[:] = u
+            mujoco.mj_step(m, d3)
+            retimed_min = min(retimed_min, least(d3)[0])
+        retimed_min = round(float(retimed_min), 4)
     self.on_step = on_step
     start = least(self.data)
     obs = orig(self, action)
@@ -86,6 +107,7 @@ def execute(self, action):
             "real_at": i,
             "geoms": real[i][1:] if real else None,
             "hit": obs.transit_hit_fixed,
+            "retimed_min": retimed_min,
         }
     )
     print(len(log) - 1, log[-1], flush=True)
@@ -108,8 +130,11 @@ def execute(self, action):
 ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
 ap.add_argument("maps", type=Path, help="folder of case2.h5: the map the trial ran on")
 ap.add_argument("--log", type=Path, help="JSON written: every transit's figures")
+ap.add_argument("--law", choices=("constant", "retimed"), default="constant", help="the transits' time law (above)")
 args = ap.parse_args()
 executor.SimulatedRealWorld.execute = execute
+if args.law == "constant":
+    actions.retime = lambda q0, targets, dt: np.asarray(targets, np.float64)  # the ninth session's law
 robot = load_robot("panda")
 maps = load_maps(robot, ("case2",), args.maps)
 cfg = EvalConfig(
@@ -127,5 +152,9 @@ with tempfile.TemporaryDirectory() as out:
 rec = json.loads((Path(__file__).parent / "tunnel_push_weight2_h100_2026-11-26" / "cpu_eval_w1.json").read_text())
 r = next(x for x in rec if x["seed"] == 2011)
 print("same edges as recorded:", [s["edge"] for s in recs[0]["steps"]] == [s["edge"] for s in r["steps"]])
+if args.law == "constant":
+    pairs = [(x["real_min"], x["retimed_min"]) for x in log if x["retimed_min"] is not None]
+    least_c, least_r = min(a for a, _ in pairs), min(b for _, b in pairs)
+    print(f"least distance over the trial's transits: constant speed {least_c} m; retimed {least_r} m")
 if args.log is not None:
     args.log.write_text(json.dumps(log, indent=1))
