@@ -599,6 +599,20 @@ def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map,
         assert all(np.array_equal(x.q, y.q) for x, y in zip(a.actions, b.actions, strict=True))
 
 
+def begins_along(q: np.ndarray, way: np.ndarray) -> int:
+    """How many of the joint targets q (an action's) lead along the polyline `way` to its end
+    (every one of them on it, to 1e-9 rad; the last equal to way[-1]): `lmjx.timing.retime`
+    changes when the arm reaches each point of a transit's path, not the path."""
+    ends = np.nonzero(np.all(np.abs(q - way[-1]) <= 1e-12, axis=1))[0]
+    assert len(ends), "the path's end is never reached"
+    seg = way[1:] - way[:-1]
+    length2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-30)
+    for p in q[: ends[0] + 1]:
+        f = np.clip(np.einsum("ij,ij->i", p - way[:-1], seg) / length2, 0, 1)
+        assert np.min(np.abs(way[:-1] + f[:, None] * seg - p).max(axis=1)) < 1e-9
+    return int(ends[0]) + 1
+
+
 def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     """An edge that pushed the target leaves the arm inside the scene's margins; the next
     actions' transits then begin with the same retreat back along that edge, on which the
@@ -637,13 +651,8 @@ def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     assert lead is not None
     way = np.concatenate([obs.robot_q[None], lead])  # the retreat's path (lmjx.timing retimes it, not the path)
     for a in acts:
-        k = int(np.nonzero(np.all(np.isclose(a.q, lead[-1], atol=1e-12), axis=1))[0][0])
-        assert np.array_equal(a.q[: k + 1], acts[0].q[: k + 1])  # every transit begins the same way
-        seg = way[1:] - way[:-1]
-        length2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-30)
-        for p in a.q[: k + 1]:  # ... along the retreat's path
-            f = np.clip(np.einsum("ij,ij->i", p - way[:-1], seg) / length2, 0, 1)
-            assert np.min(np.abs(way[:-1] + f[:, None] * seg - p).max(axis=1)) < 1e-9
+        k = begins_along(a.q, way)
+        assert np.array_equal(a.q[:k], acts[0].q[:k])  # every transit begins the same way
     s = np.array([slack(q) for q in lead])
     assert s.min() >= min(slack(obs.robot_q), 0.0) - LEAVE_TOLERANCE - 1e-4
     assert s[-1] >= RETREAT_SLACK - 1e-4
@@ -889,7 +898,7 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     for a in acts:
         if a.route.startswith("escape+"):
             assert a.edge not in plain
-            np.testing.assert_array_equal(a.q[: len(path)], path)
+            begins_along(a.q, np.concatenate([q0[None], path]))  # the escape's path, retimed
         else:
             np.testing.assert_allclose(a.q, plain[a.edge].q, rtol=0, atol=1e-12)
     # the transits after the escape, for edges that have one from where the arm stands too:
@@ -919,7 +928,7 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     assert jam and all(a.route.startswith("escape+") for a in jam)
     assert [a.edge for a in jam] == sorted(a.edge for a in jam)
     for a in jam:
-        np.testing.assert_array_equal(a.q[: len(path)], path)
+        begins_along(a.q, np.concatenate([q0[None], path]))
 
 
 def _observed(robot, sc, seed: int) -> np.ndarray:
