@@ -12,7 +12,10 @@ cpu_eval_w1.json); `--log`: every transit's figures as JSON too.  `--law constan
 default) plans and executes the transits at constant speed, as the ninth session did (the
 trial is then the recorded one), and executes each transit a second time from the same state
 as `lmjx.timing.retime` times it (the present law: slowing to rest into sharp corners), its
-least distance printed beside ("retimed_min"); `--law retimed` runs the trial as the present
+least distance over the transit's physics steps printed beside ("retimed_min"; "real_min"
+covers the same steps of the recorded execution; benchmarks/transit_retime_2026-11-27.json
+measured each transit alone from its start with 0.3 s held after it, a stricter window: an
+arm that ends at speed overshoots when held); `--law retimed` runs the trial as the present
 code does (it takes other edges from the first transit with a sharp corner on).
 """
 
@@ -86,7 +89,7 @@ def execute(self, action):
         qd = np.gradient(np.concatenate([q_now[None], timed]), CONTROL_DT, axis=0)[1:]
         alone = Action(edge=action.edge, q=timed, qd=qd, transit_steps=len(timed), via_park=False, route="x")
         retimed_min = np.inf
-        for u in controls(alone, m.opt.timestep, 0.3):
+        for u in controls(alone, m.opt.timestep, 0.0):  # the transit's physics steps, as real_min
             d3.ctrl[:] = u
             mujoco.mj_step(m, d3)
             retimed_min = min(retimed_min, least(d3)[0])
