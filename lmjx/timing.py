@@ -55,8 +55,8 @@ def ramped(t: float, n: int, rise: bool = True, fall: bool = True) -> np.ndarray
     total, r, v = _law(t, rise, fall)
     tau = np.arange(1, n + 1) * (total / n)
 
-    def up(x: np.ndarray) -> np.ndarray:  # s done x seconds into a rise
-        return 0.5 * v * (x - r / np.pi * np.sin(np.pi * x / r)) if r > 0 else v * x
+    def up(x: np.ndarray) -> np.ndarray:  # s done x seconds into a rise (r > 0 with a rise or a fall)
+        return 0.5 * v * (x - r / np.pi * np.sin(np.pi * x / r))
 
     s = v * (tau - (r / 2 if rise else 0.0))  # the planned speed
     if rise:
@@ -71,7 +71,15 @@ def corners(q0: np.ndarray, targets: np.ndarray, dt: float) -> np.ndarray:
     """Indices k (into targets) after which the planned velocity changes by more than
     CORNER_JUMP [rad/s] on some joint: the velocity from targets[k-1] (q0 for k = 0) to
     targets[k] against the next one's."""
-    path = np.concatenate([np.asarray(q0, np.float64)[None], np.asarray(targets, np.float64)])
+    return _corners(_path(q0, targets), dt)
+
+
+def _path(q0: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """q0 then targets, (T + 1, nj) float64."""
+    return np.concatenate([np.asarray(q0, np.float64)[None], np.asarray(targets, np.float64)])
+
+
+def _corners(path: np.ndarray, dt: float) -> np.ndarray:
     v = np.diff(path, axis=0) / dt
     jump = np.abs(np.diff(v, axis=0)).max(axis=1) if len(v) > 1 else np.zeros(0)
     return np.nonzero(jump > CORNER_JUMP)[0]
@@ -84,10 +92,10 @@ def retime(q0: np.ndarray, targets: np.ndarray, dt: float) -> np.ndarray:
     targets = np.asarray(targets, np.float64)
     if len(targets) < 2:
         return targets
-    turns = corners(q0, targets, dt)
+    path = _path(q0, targets)
+    turns = _corners(path, dt)
     if not len(turns):
         return targets  # no sharp corner: as planned
-    path = np.concatenate([np.asarray(q0, np.float64)[None], targets])
     cuts = np.concatenate([[0], turns + 1, [len(targets)]])
     out = []
     for i, (a, b) in enumerate(pairwise(cuts)):
