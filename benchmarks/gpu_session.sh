@@ -5,7 +5,7 @@
 # (no argument: all; the issue-9 steps: maps100k planner gputests evalgpu; issues 10 and 11:
 # warm100k edges5m shard5m speedup5m shardscale threads5m decision uratlas; issue 18: maps2026 agree2026 (or agreedec); issue 19:
 # issue19, evmap (once per carried map), evprev (results of an earlier machine), eval19 (again to continue); planner, gputests, evalgpu and decision need
-# warp-lang installed in /tmp/site from its three parts, see ../shared/tools/warp-parts).  Everything
+# warp-lang installed in /tmp/site from its parts, see ../shared/tools/warp-parts and docs/DETAILS.md: five of 31 MiB since the tree is 27 MiB).  Everything
 # printed also goes to $OUT/session.log; bench.json and the
 # lock search (lock_j6j7.json/.png) land in $OUT too (default ./out/gpu).  The wheels come
 # from  ../shared/tools/gpu-wheels .whl glfw pyopengl websockets  (carry .whl), with isal's cp312
