@@ -148,6 +148,11 @@ class StepRecord:
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
+    # the planner's score (`score`: the path length to the goal, weighted with a push weight,
+    # plus penalties) of the observed state after the action; beside `predicted_distance`, the
+    # same score of the chosen candidate's simulated outcome (Greedy, Lazy), what the planner
+    # expected: the two apart are the planner's simulator against the "real" world
+    score_after: float = float("nan")
     # Greedy with when_stuck="options" at a decision where no candidate was predicted to
     # improve: the chosen candidate's estimated options and predicted score, and the best
     # predicted score (`Planner._most_options`)
@@ -168,6 +173,8 @@ class StepRecord:
             "distance_after_m": round(self.distance_after, 4),
             "planning_s": round(self.planning_s, 3),
             "target_moved_m": None if np.isnan(self.target_moved_m) else round(self.target_moved_m, 4),
+            "predicted_score_m": None if self.predicted_distance is None else round(self.predicted_distance, 4),
+            "score_after_m": None if np.isnan(self.score_after) else round(self.score_after, 4),
             "transit_contacts": list(self.transit_contacts),
             "transit_hit_fixed": self.transit_hit_fixed,
             "transit_left": list(self.transit_left),
@@ -560,8 +567,9 @@ class Planner:
             rec.transit_route = action.route
             rec.edge_states = action.edge_states
             rec.edge_first = action.edge_first
+            rec.score_after = float(score(self.sc, self.robot, obs.objects[None], self.field)[0])
             steps.append(rec)
-            if float(score(self.sc, self.robot, obs.objects[None], self.field)[0]) >= TARGET_LOST:
+            if rec.score_after >= TARGET_LOST:
                 reason = "target off the table"
                 break
         else:

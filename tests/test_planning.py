@@ -195,6 +195,13 @@ def test_trials_run_and_repeat(robot, plan_map, asm):
     # run in XLA's CPU code; the "real" world is C MuJoCo)
     assert a.final_distance == pytest.approx(want["final_distance_m"], abs=2e-5)
     assert a.execution_s == pytest.approx(want["execution_s"], abs=1e-6)
+    # what the planner expected of its pick (Greedy, Lazy; Random simulates nothing) and its
+    # score of what came, against the truth: scenario 1 has nothing fixed between the target
+    # and the goal (the path length is the straight distance), the last observation is 2 mm
+    # noisy, the goal field a 5 mm grid
+    assert all((s.predicted_distance is None) == (asm == "random") for s in a.steps)
+    done = [s for s in a.steps if s.edge >= 0]  # (a last record may be a decision that found no action)
+    assert done[-1].score_after == pytest.approx(a.final_distance, abs=0.008)
     sims = [s.simulated for s in a.steps]
     if asm == "random":
         assert sims == [0] * len(sims)
@@ -257,9 +264,15 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s",
                                "end", "asm_settings", "steps"}  # fmt: skip
     assert all(r["end"] in ENDS for r in records) and {r["tasks"] for r in records} == {"paper"}
-    for step in (x for r in records for x in r["steps"]):
-        assert {"target_moved_m", "transit_contacts", "transit_hit_fixed", "transit_left"} <= set(step)
-        assert not step["transit_hit_fixed"]
+    for r in records:
+        for step in r["steps"]:
+            assert {"target_moved_m", "transit_contacts", "transit_hit_fixed", "transit_left"} <= set(step)
+            assert not step["transit_hit_fixed"]
+            # what the planner expected (Greedy: its pick's simulated outcome; Random simulates
+            # nothing) and its score of what came: in scenario 1 nothing fixed stands between
+            # the target and the goal, so the path length is the straight distance (5 mm grid)
+            assert (step["predicted_score_m"] is None) == (r["asm"] == "random")
+            assert step["score_after_m"] == pytest.approx(step["distance_after_m"], abs=0.005)
     assert "How the trials ended" in (ev / "report.md").read_text()
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
     r = cli(*args)  # resumes: nothing left to do
