@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from lmjx import actions, executor
-from lmjx.actions import CONTROL_DT, Action, controls
+from lmjx.actions import CONTROL_DT, Action, controls, transit_velocities
 from lmjx.evaluate import EvalConfig, evaluate, load_maps
 from lmjx.planner import PlannerConfig
 from lmjx.robot import load_robot
@@ -86,7 +86,7 @@ def execute(self, action):
         d3 = copy.deepcopy(self.data)
         q_now = self.data.qpos[qadr].copy()
         timed = retime(q_now, action.q[: action.transit_steps], CONTROL_DT)
-        qd = np.gradient(np.concatenate([q_now[None], timed]), CONTROL_DT, axis=0)[1:]
+        qd = transit_velocities(q_now, timed)
         alone = Action(edge=action.edge, q=timed, qd=qd, transit_steps=len(timed), via_park=False, route="x")
         retimed_min = np.inf
         for u in controls(alone, m.opt.timestep, 0.0):  # the transit's physics steps, as real_min

@@ -838,6 +838,13 @@ def _spaced(start: np.ndarray, states: np.ndarray, most: int | None = None) -> l
     return kept
 
 
+def transit_velocities(q_from: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The joint velocities (T, nj) the servos are given with joint targets (T, nj) that lead
+    on from q_from at CONTROL_DT: differences of q_from then targets (central; the last
+    one-sided)."""
+    return np.gradient(np.concatenate([np.asarray(q_from)[None], targets]), CONTROL_DT, axis=0)[1:]
+
+
 def _action(
     bundle: Bundle,
     edge: int,
@@ -851,7 +858,7 @@ def _action(
     transit = retime(q_now, transit, CONTROL_DT)  # at rest at each sharp corner
     q_edge = states["q"][first:states_used].astype(np.float64)
     qd_edge = states["qd"][first:states_used].astype(np.float64)
-    qd_transit = np.gradient(np.concatenate([q_now[None], transit]), CONTROL_DT, axis=0)[1:]
+    qd_transit = transit_velocities(q_now, transit)
     return Action(
         edge=edge,
         q=np.concatenate([transit, q_edge]),

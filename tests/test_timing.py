@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.actions import CONTROL_DT, Action, TransitPlanner
+from lmjx.actions import CONTROL_DT, Action, TransitPlanner, transit_velocities
 from lmjx.executor import SimulatedRealWorld
 from lmjx.failure import parse_failure
 from lmjx.scenarios import sample_layout, scenario
@@ -138,7 +138,7 @@ def test_a_transit_stops_at_its_corner_and_the_real_arm_follows_it(robot):
         world.reset(layout, verts[0])
         seen: list[np.ndarray] = []
         world.on_step = lambda m, d: seen.append(d.qpos[world.scene.robot_qpos].copy())
-        qd = np.gradient(np.concatenate([verts[0][None], targets]), CONTROL_DT, axis=0)[1:]
+        qd = transit_velocities(verts[0], targets)
         action = Action(edge=0, q=targets, qd=qd, transit_steps=len(targets), via_park=False, route="test")
         world.execute(action)
         corner = int(np.argmin(np.abs(targets - verts[1]).max(axis=1)))
