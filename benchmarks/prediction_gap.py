@@ -47,8 +47,8 @@ def report(a: np.ndarray, label: str) -> str:
         f"{np.median(after - pred) * 1000:.1f} mm, p90 {np.percentile(after - pred, 90) * 1000:.1f} mm, "
         f"mean |gap| {np.mean(np.abs(after - pred)) * 1000:.1f} mm; predicted to gain >= {GAIN * 1000:.0f} mm: "
         f"{hoped.sum()}, of those gained >= {GAIN * 1000:.0f} mm {(hoped & (before - after >= GAIN)).sum()}, "
-        f"lost >= {GAIN * 1000:.0f} mm {(hoped & (after - before >= GAIN)).sum()}; no candidate predicted to "
-        f"gain at all: {(pred >= before).sum()}"
+        f"lost >= {GAIN * 1000:.0f} mm {(hoped & (after - before >= GAIN)).sum()}; the pick not predicted to "
+        f"gain at all (Greedy: none of its candidates was; Lazy: none it tried): {(pred >= before).sum()}"
     )
 
 
