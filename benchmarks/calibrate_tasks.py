@@ -48,6 +48,7 @@ import numpy as np
 
 from lmjx.actions import TransitPlanner
 from lmjx.cores import usable_cores
+from lmjx.errors import LmjxError
 from lmjx.evaluate import trial_seed
 from lmjx.executor import SimulatedRealWorld
 from lmjx.lockstep import run_lockstep
@@ -184,6 +185,17 @@ def apply(choice: dict, path: Path) -> None:
     path.write_text(text)
 
 
+def _runs_of(path: Path) -> list[dict]:
+    """The "runs" of an earlier --out file; a one-line exit for a missing or foreign file."""
+    try:
+        runs = json.loads(path.read_text())["runs"]
+    except FileNotFoundError:
+        raise SystemExit(f"calibrate_tasks: {path} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        raise SystemExit(f"calibrate_tasks: {path} is not a calibration file (an --out file of this script)") from None
+    return runs
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--maps", default="maps", help="folder with case1.h5 and case2.h5")
@@ -208,7 +220,7 @@ def main() -> None:
     if args.from_runs:  # the trials of earlier runs (or of one run's parts), scored again
         merged: dict[tuple[str, int], dict[int, dict]] = {}
         for path in args.from_runs:
-            for r in json.loads(Path(path).read_text())["runs"]:
+            for r in _runs_of(Path(path)):
                 merged.setdefault((r["failure"], r["scenario"]), {}).update({tr["seed"]: tr for tr in r["trials"]})
         runs = {k: [v[seed] for seed in sorted(v)] for k, v in sorted(merged.items())}
         counts = {len(v) for (f, _), v in runs.items() if f == "case1"} or {len(v) for v in runs.values()}
@@ -226,7 +238,10 @@ def main() -> None:
     for f in args.failures.split(","):
         if args.from_runs:
             break
-        m = load_map(Path(args.maps) / f"{f}.h5", robot=robot)
+        try:
+            m = load_map(Path(args.maps) / f"{f}.h5", robot=robot)
+        except LmjxError as e:
+            raise SystemExit(f"calibrate_tasks: {e}") from None
         for s in (int(x) for x in args.scenarios.split(",")):
             runs[(f, s)] = run_trials(robot, m, s, args.trials, max(BUDGETS), args.first)
             acts = [tr["actions"] for tr in runs[(f, s)]]
