@@ -1193,3 +1193,57 @@ def test_a_report_says_the_settings_its_trials_ran_with():
         config,
     )
     assert len(two) == 2 and two[0].startswith("ASM settings (greedy)") and "push_weight 0.0" in two[1]
+
+
+def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
+    """benchmarks/calibrate_tasks.py runs each calibration trial of Random once, without a
+    goal, and scores every candidate task on the recorded track (`outcome`).  That is sound
+    only if the trial run on the task itself (the paper's settings, the same seeds) ends the
+    same way: the same success after the same number of actions.  The goals are placed from
+    the tracks: on a trial's observed target after its first action (the planner stops
+    there), the same point 5 mm inside a goal's edge (less than the planner's 1 cm margin: it
+    goes on), and far away with a shorter budget (it ends at the budget)."""
+    from dataclasses import replace
+
+    from lmjx.planner import Planner
+    from lmjx.scenarios import PaperTask, paper_variant
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+    try:
+        import calibrate_tasks as ct
+    finally:
+        sys.path.pop(0)
+    m = load_map(plan_map, robot=robot)
+    tracks = ct.run_trials(robot, m, 1, 3, 4)
+    hard = scenario(1, tasks="hard")
+    start = np.array([hard.target.x, hard.target.y])
+    half = 0.03
+    moved = [tr for tr in tracks if tr["actions"] >= 2]
+    assert moved, [(tr["end"], tr["actions"]) for tr in tracks]
+    pick = max(moved, key=lambda tr: np.abs(np.subtract(tr["track"][1][0], tr["track"][0][0])).max())
+    first = np.array(pick["track"][1][0])  # its observed target after the first action
+    assert np.abs(first - np.array(pick["track"][0][0])).max() > half + 0.01, "the first push moved too little"
+
+    def task_at(centre: np.ndarray, half: float, budget: int):
+        d = centre - start
+        angle = float(np.degrees(np.arctan2(d[1], d[0])))
+        return paper_variant(hard, PaperTask(float(np.hypot(*d)), half, angle), budget)
+
+    tasks = [
+        task_at(first, half, 4),
+        task_at(first - np.array([half - 0.005, 0.0]), half, 4),
+        task_at(start + np.array([0.0, -0.25]), 0.05, 1),
+    ]
+    cfg = PlannerConfig(asm="random").paper()
+    transits = TransitPlanner(robot, m.failure)
+    got = {}
+    for i, task in enumerate(tasks):
+        for tr in tracks:
+            planner = Planner(robot, m.failure, m.reach, m.edges, task, None, replace(cfg, max_actions=task.budget),
+                              transits)  # fmt: skip
+            res = planner.run(SimulatedRealWorld(robot, tr["seed"]), sample_layout(task, tr["seed"]), tr["seed"] * 7)
+            got[i, tr["seed"]] = res.actions
+            want = ct.outcome(tr["track"], task, task.budget)
+            assert (res.success, res.actions) == want, (i, tr["seed"], res.reason, want)
+    # the cases the goals were placed for: a stop on the goal, a pass 5 mm inside it, the budget
+    assert got[0, pick["seed"]] == 1 and got[1, pick["seed"]] >= 2 and got[2, pick["seed"]] == 1, got
