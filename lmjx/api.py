@@ -12,7 +12,7 @@ wires the library together: the work is in `lmjx.edgestream` and `lmjx.trial`.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -245,7 +245,7 @@ def planner_config(
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
     late_start: bool = False,
-    push_weight: float = 0.0,
+    push_weight: float | None = None,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
@@ -253,7 +253,8 @@ def planner_config(
     no candidate is predicted to improve (`PlannerConfig.when_stuck`), `late_start` edges whose
     start lies in a fixed obstacle's margin entered at their first clear state
     (`PlannerConfig.late_start`), `push_weight` the score's weight on where the map pushes
-    toward the goal (`PlannerConfig.push_weight`)."""
+    toward the goal (`PlannerConfig.push_weight`; None: 1 with lmjx's settings, 0 with the
+    paper's, which refuse any other)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -262,10 +263,11 @@ def planner_config(
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
         when_stuck=when_stuck,
         late_start=late_start,
-        push_weight=push_weight,
     )
     if asm_settings == "paper":
         config = config.paper()
+    if push_weight is not None:  # given: kept, and refused with the paper's settings (`validate`)
+        config = replace(config, push_weight=push_weight)
     config.validate()
     return config
 
@@ -281,7 +283,7 @@ def plan_task(
     asm_settings: str = "lmjx",
     when_stuck: str = "best",
     late_start: bool = False,
-    push_weight: float = 0.0,
+    push_weight: float | None = None,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -299,7 +301,8 @@ def plan_task(
     candidate is predicted to improve ("best" or "options", `PlannerConfig.when_stuck`);
     `late_start`: offer edges whose start lies in a fixed obstacle's margin from their first
     clear state (`PlannerConfig.late_start`); `push_weight`: weigh the score by where the
-    map's edges push toward the goal (`PlannerConfig.push_weight`);
+    map's edges push toward the goal (`PlannerConfig.push_weight`; default 1, 0 with the
+    paper's settings);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,

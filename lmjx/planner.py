@@ -79,9 +79,10 @@ class PlannerConfig:
     # wanted, an edge whose start lies within a fixed obstacle's margin is offered from its first
     # state clear of the scene (`TransitPlanner.late_starts`), where that part still acts on the
     # target; off: such an edge is not offered
-    push_weight: float = 0.0  # > 0: "closest" is the cost of the cheapest way to the goal, each
+    push_weight: float = 1.0  # > 0: "closest" is the cost of the cheapest way to the goal, each
     # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.pushfield`:
-    # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`)
+    # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`).
+    # 1 since 2026-11-27 (benchmarks/evaluation_plan_2026-11-27.md; 0 before)
 
     __repr__ = config_repr
 
@@ -106,9 +107,9 @@ class PlannerConfig:
         """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
         distance to the goal, Lazy over all the edges over the target in random order with no
         fallback (when none moves the target toward the goal: no action), Greedy on a uniform
-        subset of a quarter of them."""
+        subset of a quarter of them (no push weight: it weighs the path length, not used)."""
         return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
-                       greedy_fraction=0.25)  # fmt: skip
+                       greedy_fraction=0.25, push_weight=0.0)  # fmt: skip
 
     def settings(self) -> dict:
         """The refinements on or off, for the records."""

@@ -182,7 +182,8 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 @pytest.mark.parametrize("asm", ["random", "lazy", "greedy"])
 def test_trials_run_and_repeat(robot, plan_map, asm):
     m = load_map(plan_map)
-    cfg = PlannerConfig(asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4)
+    # (the golden trials' settings: no push weight, so the score below is the path length)
+    cfg = PlannerConfig(asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4, push_weight=0.0)
     a = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
     b = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
     wall = {"planning_s": 0, "compile_s": 0}  # the first run compiles what the second finds compiled
@@ -217,6 +218,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     out = json.loads(r.stdout)
     assert {"success", "actions", "planning_s", "execution_s", "end", "asm_settings", "steps"} <= set(out)
     assert out["asm_settings"]["futile_filter"] is True and out["tasks"] == "paper"
+    assert out["asm_settings"]["push_weight"] == 1.0  # the default (0 with the paper's settings, below)
     paper = json.loads(cli("plan", "--map", small_map, "--scenario", "2", "--asm", "lazy", "--asm-settings", "paper",
                            "--when-stuck", "options", "--late-start", "--max-actions", "1",
                            "--json").ok().stdout)  # fmt: skip
@@ -700,6 +702,8 @@ def paired_decisions(robot, small_map, greedy_pick=None) -> list[tuple[float, fl
                                     transits)  # fmt: skip
         if greedy_pick is not None:
             planners["greedy"].best_of = greedy_pick
+        closeness = planners["random"].field  # the path length to the goal, for both (Greedy's own
+        # score may weigh it by the map's pushes: `PlannerConfig.push_weight`)
         for seed in range(40, 55):
             layout = sample_layout(sc, seed)
             obs = SimulatedRealWorld(robot, seed).reset(layout, transits.park)
@@ -709,11 +713,11 @@ def paired_decisions(robot, small_map, greedy_pick=None) -> list[tuple[float, fl
                 world = SimulatedRealWorld(robot, seed)
                 world.reset(layout, transits.park)
                 if action is None:
-                    after[asm] = float(planner.field(world.truth()[0, :2]))
+                    after[asm] = float(closeness(world.truth()[0, :2]))
                     continue
                 done = world.execute(action)
                 fixed |= done.transit_hit_fixed
-                after[asm] = float(planner.field(world.truth()[0, :2]))
+                after[asm] = float(closeness(world.truth()[0, :2]))
             out.append((after["greedy"], after["random"], fixed))
     return out
 
@@ -1183,15 +1187,14 @@ def test_a_report_says_the_settings_its_trials_ran_with():
     the settings from the trials' records: one line where they agree, one per set where not."""
     from lmjx.evaluate import EvalConfig, _settings_lines
 
-    config = EvalConfig(tasks="hard", planner=PlannerConfig())
+    config = EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=0.0))
     weighted = PlannerConfig(push_weight=1.0).settings()
+    assert PlannerConfig().settings() == weighted  # (the default since 2026-11-27)
     one = _settings_lines([{"asm": "greedy", "asm_settings": weighted}] * 2, config)
     assert one == [_settings_lines([], EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=1.0)))[0]]
     assert "push_weight 1.0" in one[0]
-    two = _settings_lines(
-        [{"asm": "greedy", "asm_settings": weighted}, {"asm": "lazy", "asm_settings": PlannerConfig().settings()}],
-        config,
-    )
+    plain = PlannerConfig(push_weight=0.0).settings()
+    two = _settings_lines([{"asm": "greedy", "asm_settings": weighted}, {"asm": "lazy", "asm_settings": plain}], config)
     assert len(two) == 2 and two[0].startswith("ASM settings (greedy)") and "push_weight 0.0" in two[1]
 
 

@@ -74,12 +74,13 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--push-weight",
         type=_nonnegative_float,
-        default=0.0,
+        default=None,
         metavar="W",
         help="greedy and lazy score a candidate by the cost of the target's way to the goal, each metre weighted "
-        "by 1 + W ln(median / n), n the map's edges that push toward the goal there (at least 1; the counts take "
-        "a few minutes per map and scenario on a CPU); default 0: the path length around the fixed obstacles "
-        "(a lever for the tunnel, docs/EVALUATION.md)",
+        "by 1 + W ln(median / n), n the map's edges that push toward the goal there (the counts take a few "
+        "minutes per map and scenario on a CPU, then are kept in lmjx's cache folder); default 1 (0 with "
+        "--asm-settings paper, which scores by the straight distance and takes no weight); 0: the path length "
+        "around the fixed obstacles alone (docs/EVALUATION.md)",
     )
     _add_sim(p)
 
