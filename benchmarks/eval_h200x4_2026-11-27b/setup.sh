@@ -1,0 +1,10 @@
+# call 1 (carry .whl, .evp4): wheels, the repo's copy, both maps building on GPUs 0 and 1, the orchestrator
+mkdir -p /tmp/parts /tmp/lmjx_gpu/maps /tmp/rb
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
+cp -r lmjx kernels benchmarks pyproject.toml .evp4 /tmp/rb/
+cd /tmp/rb
+for c in 1 2; do
+  CUDA_VISIBLE_DEVICES=$((c-1)) XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONPATH=/tmp/site:/tmp/rb setsid nohup python3 -m lmjx.cli build-map --failure case$c --edges 1000000 --seed 0 --no-shard --out /tmp/lmjx_gpu/maps/case$c.h5 > /tmp/lmjx_gpu/build$c.log 2>&1 < /dev/null &
+done
+setsid nohup bash .evp4/orch.sh > /tmp/lmjx_gpu/orch.log 2>&1 < /dev/null &
+sleep 2; nvidia-smi -L; nproc; free -g | head -2; date -u
