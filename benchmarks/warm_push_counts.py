@@ -31,6 +31,10 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         numbers = [int(s) for s in args.scenarios.split(",")]
+    except ValueError as e:
+        print(f"warm_push_counts: bad --scenarios {args.scenarios!r}: {e}", file=sys.stderr)
+        return 2
+    try:
         m = load_map(args.map)
         if m.edges is None:
             raise LmjxError(f"{args.map} has no edges")
@@ -43,9 +47,6 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             _score_field(robot, m.failure, m.reach, m.edges, sc, cfg)
             print(f"{args.map}: scenario {s} ({args.tasks} tasks): push counts in {time.perf_counter() - t0:.1f} s")
-    except ValueError as e:
-        print(f"warm_push_counts: bad --scenarios {args.scenarios!r}: {e}", file=sys.stderr)
-        return 2
     except LmjxError as e:
         print(f"warm_push_counts: {e}", file=sys.stderr)
         return 2

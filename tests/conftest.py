@@ -56,6 +56,17 @@ TINY_ATLAS = ("--robot", TINY_ARM, "--joints", "2", "--angles", "2", "--cell", "
               "2", "--iterations", "16", "--group", "3", "--chunk", "128")  # fmt: skip
 
 
+def benchmark_module(name: str):
+    """A script of benchmarks/ imported as a module (the folder is not a package)."""
+    import importlib
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.pop(0)
+
+
 def random_configs(robot, n: int, seed: int) -> np.ndarray:
     return robot.lower + np.random.default_rng(seed).random((n, robot.nq)) * (robot.upper - robot.lower)
 

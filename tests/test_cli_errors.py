@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cli
+from conftest import benchmark_module, cli
 
 import lmjx
 
@@ -165,11 +165,7 @@ def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
     assert why["tested"] == why["start_blocked"] + why["edge_unusable"] + why["no_transit"], why
     for bad in ("3/2", "half"):
         cli(*args, tmp_path / "bad", "--part", bad).one_line_error("--part")
-    sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-    try:
-        import recount_contacts
-    finally:
-        sys.path.pop(0)
+    recount_contacts = benchmark_module("recount_contacts")
     split[1]["steps"][0]["target_moved_m"] += 0.01
     replayed = recount_contacts.replay(split, plan_map.parent, lambda line: None)
     assert [[st["same"] for st in t["steps"]] for t in replayed] == [[True] * len(edges[0]), [False] * len(edges[1])]

@@ -11,7 +11,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from conftest import cli
+from conftest import benchmark_module, cli
 
 from lmjx.actions import CONTROL_DT, MIN_EDGE_STATES, TransitPlanner, controls, park_pose
 from lmjx.executor import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
@@ -1211,11 +1211,7 @@ def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
     from lmjx.planner import Planner
     from lmjx.scenarios import PaperTask, paper_variant
 
-    sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-    try:
-        import calibrate_tasks as ct
-    finally:
-        sys.path.pop(0)
+    ct = benchmark_module("calibrate_tasks")
     m = load_map(plan_map, robot=robot)
     tracks = ct.run_trials(robot, m, 1, 3, 4)
     hard = scenario(1, tasks="hard")
