@@ -246,6 +246,8 @@ def planner_config(
     when_stuck: str = "best",
     late_start: bool = False,
     push_weight: float | None = None,
+    rescore_top: int = 0,
+    rescore_draws: int = 8,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
@@ -254,7 +256,8 @@ def planner_config(
     start lies in a fixed obstacle's margin entered at their first clear state
     (`PlannerConfig.late_start`), `push_weight` the score's weight on where the map pushes
     toward the goal (`PlannerConfig.push_weight`; None: 1 with lmjx's settings, 0 with the
-    paper's, which refuse any other)."""
+    paper's, which refuse any other), `rescore_top` and `rescore_draws` Greedy's second look at
+    its best candidates from redrawn observations (`PlannerConfig.rescore_top`; 0: off)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -263,6 +266,8 @@ def planner_config(
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
         when_stuck=when_stuck,
         late_start=late_start,
+        rescore_top=rescore_top,
+        rescore_draws=rescore_draws,
     )
     if asm_settings == "paper":
         config = config.paper()
@@ -284,6 +289,8 @@ def plan_task(
     when_stuck: str = "best",
     late_start: bool = False,
     push_weight: float | None = None,
+    rescore_top: int = 0,
+    rescore_draws: int = 8,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -302,7 +309,9 @@ def plan_task(
     `late_start`: offer edges whose start lies in a fixed obstacle's margin from their first
     clear state (`PlannerConfig.late_start`); `push_weight`: weigh the score by where the
     map's edges push toward the goal (`PlannerConfig.push_weight`; default 1, 0 with the
-    paper's settings);
+    paper's settings); `rescore_top`, `rescore_draws`: Greedy simulates its `rescore_top` best
+    candidates again from `rescore_draws - 1` redrawn observations and takes the best mean
+    (`PlannerConfig.rescore_top`; 0, the default: off);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
@@ -351,7 +360,10 @@ def plan_task(
         sim_name, why = "none", "random does not simulate"
     else:
         sim_name, why = resolve_simulator(sim)
-    config = planner_config(asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight)
+    config = planner_config(
+        asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight, rescore_top,
+        rescore_draws,
+    )  # fmt: skip
     if say is not None and sim_name != "none":  # once the settings are checked
         say(f"simulator {sim_name} ({why})")
     simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None

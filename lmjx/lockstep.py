@@ -25,6 +25,8 @@ from collections.abc import Callable, Generator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import numpy as np
+
 from .compiletime import compile_seconds
 from .executor import Executor
 from .planner import Execute, Simulate, Simulated, TrialResult, simulate_request
@@ -73,11 +75,16 @@ def _simulate(sim: Simulator, sims: dict[int, Simulate]) -> dict[int, Simulated]
     if not sim.prefers_batches:
         return {i: simulate_request(sim, req) for i, req in sims.items()}
     c0, t0 = compile_seconds(sim), time.perf_counter()
-    finals = sim.simulate_many([(r.robot_q, r.objects, r.actions) for r in sims.values()])
+    parts = [r.parts() for r in sims.values()]  # a request from several start states: one part each
+    flat = sim.simulate_many([p for ps in parts for p in ps])
     compiled = compile_seconds(sim) - c0
     seconds = max(0.0, time.perf_counter() - t0 - compiled)
-    total = max(1, sum(len(r.actions) for r in sims.values()))
+    total = max(1, sum(r.rollouts for r in sims.values()))
+    finals, at = [], 0
+    for ps in parts:
+        finals.append(np.concatenate(flat[at : at + len(ps)]))
+        at += len(ps)
     return {
-        i: Simulated(final, seconds * len(req.actions) / total, compiled * len(req.actions) / total)
+        i: Simulated(final, seconds * req.rollouts / total, compiled * req.rollouts / total)
         for (i, req), final in zip(sims.items(), finals, strict=True)
     }

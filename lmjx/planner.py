@@ -48,6 +48,10 @@ ASMS = ("random", "lazy", "greedy")
 OFF_TABLE_PENALTY = 1.0  # [m] per object that leaves the table
 TARGET_LOST = 10.0  # [m] when the target leaves the table
 WHEN_STUCK = ("best", "options")
+# rescoring's draws of the observed poses: the "real" world's observation noise
+# (`executor.SimulatedRealWorld`: x, y each N(0, 2 mm), yaw N(0, 1.5 deg))
+RESCORE_POS_NOISE = 0.002  # [m]
+RESCORE_YAW_NOISE = math.radians(1.5)  # [rad]
 OPTIONS_NEAR = 0.8  # when_stuck="options": candidates with at least this share of the most options qualify
 
 
@@ -83,6 +87,12 @@ class PlannerConfig:
     # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.pushfield`:
     # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`).
     # 1 since 2026-11-27 (benchmarks/evaluation_plan_2026-11-27.md; 0 before)
+    rescore_top: int = 0  # > 0: Greedy simulates its this many best candidates again from
+    # rescore_draws - 1 more starts, every object's observed pose redrawn with the observation
+    # noise the "real" world's camera has (`RESCORE_POS_NOISE`, `RESCORE_YAW_NOISE`), and takes
+    # the one with the lowest mean score over the rescore_draws starts (the observed one
+    # included): a push whose outcome hangs on millimetres no longer wins on one lucky rollout
+    rescore_draws: int = 8
 
     __repr__ = config_repr
 
@@ -100,6 +110,11 @@ class PlannerConfig:
                 "a push weight weighs the path-length score, which the paper's ASM settings replace by the "
                 "straight distance: leave out --push-weight or --asm-settings paper"
             )
+        if self.rescore_top < 0:
+            raise ConfigError(f"the candidates to rescore must be at least 0, got {self.rescore_top}")
+        if self.rescore_draws < 2:
+            raise ConfigError(f"rescoring needs at least 2 starts a candidate (the observed one and a draw), got "
+                              f"{self.rescore_draws}")  # fmt: skip
         if self.when_stuck not in WHEN_STUCK:
             raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
 
@@ -125,6 +140,8 @@ class PlannerConfig:
             "when_stuck": self.when_stuck,
             "late_start": self.late_start,
             "push_weight": self.push_weight,
+            # (only when on: the records of runs before it existed read the same)
+            **({"rescore": f"best {self.rescore_top}, {self.rescore_draws} starts"} if self.rescore_top else {}),
         }
 
 
@@ -158,6 +175,9 @@ class StepRecord:
     # improve: the chosen candidate's estimated options and predicted score, and the best
     # predicted score (`Planner._most_options`)
     stuck: dict | None = None
+    # Greedy with rescore_top: the chosen candidate's mean score over the draws, the best
+    # candidate's by the observed start alone, and whether the rescoring changed the choice
+    rescored: dict | None = None
 
     def __repr__(self) -> str:
         moved = "" if np.isnan(self.target_moved_m) else f", target moved {self.target_moved_m * 100:.1f} cm"
@@ -185,6 +205,7 @@ class StepRecord:
             **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
             **({"stuck": self.stuck} if self.stuck is not None else {}),
+            **({"rescored": self.rescored} if self.rescored is not None else {}),
         }
 
 
@@ -287,6 +308,23 @@ def score(sc: Scenario, robot: Robot, objects: np.ndarray, field: GoalField | No
     return np.where(off[..., 0], TARGET_LOST, s)
 
 
+def drawn_starts(objects: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """k copies (k, n, 7) of the observed objects (n, 7), each object's x, y and yaw redrawn
+    about what was observed with the observation noise (RESCORE_POS_NOISE, RESCORE_YAW_NOISE);
+    an object seen off the table or not upright (fallen) keeps its pose."""
+    out = np.repeat(objects[None].astype(np.float64), k, axis=0)
+    n = len(objects)
+    upright = np.abs(np.abs(objects[:, 3]) ** 2 + objects[:, 6] ** 2 - 1.0) < 1e-6  # a turn about z only
+    dxy = rng.normal(0.0, RESCORE_POS_NOISE, (k, n, 2))
+    dyaw = rng.normal(0.0, RESCORE_YAW_NOISE, (k, n))
+    yaw = 2.0 * np.arctan2(objects[:, 6], objects[:, 3])
+    out[:, :, :2] += np.where(upright[None, :, None], dxy, 0.0)
+    new_yaw = np.where(upright[None], yaw[None] + dyaw, yaw[None])
+    out[:, :, 3] = np.where(upright[None], np.cos(new_yaw / 2), out[:, :, 3])
+    out[:, :, 6] = np.where(upright[None], np.sin(new_yaw / 2), out[:, :, 6])
+    return out
+
+
 def edges_over_target(
     bundle: Bundle, reach: ReachResult, target_xy: np.ndarray, half: float, margin: float
 ) -> np.ndarray:
@@ -303,11 +341,22 @@ def edges_over_target(
 
 @dataclass
 class Simulate:
-    """A planner's request: roll these actions out from this observed state."""
+    """A planner's request: roll these actions out from this observed state (or from each of
+    several states of the objects: `objects` (S, n, 7), the answer then start-major, S x
+    len(actions) outcomes)."""
 
     robot_q: np.ndarray  # (nj,)
-    objects: np.ndarray  # (n, 7)
+    objects: np.ndarray  # (n, 7) or (S, n, 7)
     actions: list[Action]
+
+    def parts(self) -> list[tuple[np.ndarray, np.ndarray, list[Action]]]:
+        """The request as `Simulator.simulate_many`'s requests, one per start state."""
+        starts = self.objects if self.objects.ndim == 3 else self.objects[None]
+        return [(self.robot_q, o, self.actions) for o in starts]
+
+    @property
+    def rollouts(self) -> int:
+        return len(self.actions) * (len(self.objects) if self.objects.ndim == 3 else 1)
 
 
 @dataclass
@@ -332,7 +381,10 @@ Request = Simulate | Execute
 
 def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
     c0, t0 = compile_seconds(sim), time.perf_counter()
-    final = sim.simulate(req.robot_q, req.objects, req.actions)
+    if req.objects.ndim == 3:
+        final = np.concatenate(sim.simulate_many(req.parts()))
+    else:
+        final = sim.simulate(req.robot_q, req.objects, req.actions)
     wall, compiled = time.perf_counter() - t0, compile_seconds(sim) - c0
     return Simulated(final, max(0.0, wall - compiled), compiled)
 
@@ -393,6 +445,9 @@ class Planner:
         self.futile: dict[int, np.ndarray] = {}
         self.came_from: np.ndarray | None = None  # the last executed edge's states (transits retreat along it)
         self.trail: np.ndarray | None = None  # every joint target the arm followed in this trial (the way back)
+        # rescoring's draws (`PlannerConfig.rescore_top`): a stream of their own, seeded by the
+        # trial, so that the trial's other random choices are those it makes without them
+        self.draws = np.random.default_rng(0)
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
         """One decision, simulating on this planner's simulator, timed as a trial times it
@@ -430,6 +485,19 @@ class Planner:
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
             best = self.best_of(s, rng)
+            if cfg.rescore_top > 0 and len(acts) > 1:
+                top = np.argsort(s, kind="stable")[: cfg.rescore_top]
+                starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws)
+                more = yield Simulate(obs.robot_q, starts, [acts[int(i)] for i in top])
+                drawn = score(self.sc, self.robot, more.objects, self.field).reshape(len(starts), len(top))
+                mean = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
+                pick = int(np.argmin(mean))
+                rec.rescored = {
+                    "mean_m": round(float(mean[pick]), 4),
+                    "first_mean_m": round(float(mean[0]), 4),
+                    "changed": bool(top[pick] != best),
+                }
+                best = int(top[pick])
             if cfg.when_stuck == "options" and float(s[best]) > now - cfg.min_progress:
                 best, rec.stuck = self._most_options(done.objects, s)
                 self.transits.set_scene(self.sc, obs.objects)  # the observed scene again
@@ -528,6 +596,7 @@ class Planner:
         driver charges it."""
         cfg = self.config
         rng = np.random.default_rng(seed)
+        self.draws = np.random.default_rng([seed, 1])
         self.futile = {}
         self.came_from = None
         obs = executor.reset(layout, self.transits.park)

@@ -414,6 +414,107 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
     assert chosen >= 2
 
 
+def test_redrawn_observations_spread_as_the_cameras_noise():
+    """`drawn_starts`: x, y and yaw of each upright object redrawn with the observation noise
+    the "real" world's camera has (the executor's figures); everything else kept; a fallen
+    object kept as seen."""
+    from lmjx.planner import RESCORE_POS_NOISE, RESCORE_YAW_NOISE, drawn_starts
+
+    world = SimulatedRealWorld.__new__(SimulatedRealWorld)
+    SimulatedRealWorld.__init__(world, None, 0)  # type: ignore[arg-type]
+    assert pytest.approx((world.pos_noise, world.yaw_noise)) == (RESCORE_POS_NOISE, RESCORE_YAW_NOISE)
+    objects = np.zeros((3, 7))
+    objects[:, :3] = [[0.5, 0.3, 0.025], [0.4, -0.1, 0.03], [0.6, 0.0, 0.01]]
+    yaws = np.array([0.3, -3.1, 0.0])
+    objects[:2, 3], objects[:2, 6] = np.cos(yaws[:2] / 2), np.sin(yaws[:2] / 2)
+    objects[2, 3:] = [np.cos(0.6), np.sin(0.6), 0.0, 0.0]  # turned about x: fallen
+    draws = drawn_starts(objects, 20_000, np.random.default_rng(3))
+    assert draws.shape == (20_000, 3, 7)
+    assert np.array_equal(draws[:, 2], np.repeat(objects[None, 2], 20_000, axis=0))
+    assert np.allclose(draws[:, :2, 2], objects[:2, 2]) and np.allclose(draws[:, :2, 4:6], 0.0)
+    assert np.allclose(np.linalg.norm(draws[..., 3:], axis=-1), 1.0)
+    d = draws[:, :2, :2] - objects[None, :2, :2]
+    assert np.abs(d.mean(axis=0)).max() < 4 * RESCORE_POS_NOISE / np.sqrt(20_000)
+    assert d.std(axis=0) == pytest.approx(np.full((2, 2), RESCORE_POS_NOISE), rel=0.03)
+    turned = np.angle(np.exp(1j * (2 * np.arctan2(draws[:, :2, 6], draws[:, :2, 3]) - yaws[None, :2])))
+    assert turned.std(axis=0) == pytest.approx([RESCORE_YAW_NOISE] * 2, rel=0.03)  # across -pi as well
+
+
+def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, plan_map):
+    """rescore_top: Greedy's best candidates simulated again from redrawn starts; the pick is
+    the lowest mean score over the observed start and the draws, as computed here from
+    simulations of each start alone; a batching simulator (one request of several starts)
+    decides the same; without rescoring the pick is the best of the observed start."""
+    from dataclasses import replace
+
+    from lmjx.executor import Observation
+    from lmjx.lockstep import _simulate as lockstep_simulate
+    from lmjx.planner import Planner, drawn_starts, edges_over_target
+
+    m = load_map(plan_map)
+    sc = scenario(1, tasks="hard")
+    scene = build_scene(robot, sc)
+    sim = CpuSimulator(scene)
+    top, draws = 3, 3
+    cfg = PlannerConfig(asm="greedy", greedy_candidates=6, rescore_top=top, rescore_draws=draws)
+    planner = Planner(robot, m.failure, m.reach, m.edges, sc, sim, cfg)
+    batch = Planner(robot, m.failure, m.reach, m.edges, sc, _BatchPreferringCpu(scene), cfg,
+                    transits=planner.transits)  # fmt: skip
+    plain = Planner(robot, m.failure, m.reach, m.edges, sc, sim, replace(cfg, rescore_top=0),
+                    transits=planner.transits)  # fmt: skip
+    checked = 0
+    for seed in range(3):
+        obs = Observation(planner.transits.park, object_qpos(scene, sample_layout(sc, seed).poses), 0.0)
+        planner.draws = np.random.default_rng(seed)
+        a, rec = planner.choose(obs, np.random.default_rng(seed))
+        if a is None:
+            continue
+        # the same candidates, simulated here one start at a time
+        planner.transits.set_scene(sc, obs.objects)
+        edges = edges_over_target(m.edges, m.reach, obs.objects[0, :2], float(sc.target.half[0]), cfg.target_margin)
+        acts = planner.transits.actions(m.edges, np.random.default_rng(seed).permutation(edges), obs.robot_q, 6,
+                                        None, None)  # fmt: skip
+        s = score(sc, robot, sim.simulate(obs.robot_q, obs.objects, acts), planner.field)
+        best = np.argsort(s, kind="stable")[:top]
+        starts = drawn_starts(obs.objects, draws - 1, np.random.default_rng(seed))
+        again = [score(sc, robot, sim.simulate(obs.robot_q, o, [acts[i] for i in best]), planner.field) for o in starts]
+        mean = (s[best] + np.sum(again, axis=0)) / draws
+        assert a.edge == acts[best[np.argmin(mean)]].edge
+        assert rec.rescored["mean_m"] == pytest.approx(mean.min(), abs=1e-4)
+        assert rec.rescored["changed"] == (best[np.argmin(mean)] != best[0])
+        assert rec.summary()["rescored"] == rec.rescored
+        batch.draws = np.random.default_rng(seed)  # answered as lmjx.lockstep answers a GPU's batches
+        steps, answer = batch.decide(obs, np.random.default_rng(seed)), None
+        while True:
+            try:
+                answer = lockstep_simulate(batch.sim, {0: steps.send(answer)})[0]
+            except StopIteration as done:
+                b = done.value[0]
+                break
+        assert b.edge == a.edge
+        c, crec = plain.choose(obs, np.random.default_rng(seed))
+        assert c.edge == acts[best[0]].edge and crec.rescored is None
+        checked += 1
+    assert checked >= 2
+
+    class Fragile(CpuSimulator):  # the observed start's best push, from any redrawn start, drops the target
+        def simulate(self, robot_q, obj_qpos, actions):
+            out = super().simulate(robot_q, obj_qpos, actions)
+            if not np.array_equal(obj_qpos, observed) and actions and actions[0].edge == nominal:
+                out[0, 0, 2] -= 0.5  # below the table: lost
+            return out
+
+    obs = Observation(planner.transits.park, object_qpos(scene, sample_layout(sc, 0).poses), 0.0)
+    observed = obs.objects
+    nominal = plain.choose(obs, np.random.default_rng(0))[0].edge
+    fragile = Planner(robot, m.failure, m.reach, m.edges, sc, Fragile(scene), cfg, transits=planner.transits)
+    a, rec = fragile.choose(obs, np.random.default_rng(0))
+    assert a.edge != nominal and rec.rescored["changed"] and rec.rescored["first_mean_m"] > rec.rescored["mean_m"]
+    assert cfg.settings()["rescore"] == "best 3, 3 starts" and "rescore" not in PlannerConfig().settings()
+    with pytest.raises(Exception, match="at least 2 starts"):
+        PlannerConfig(rescore_top=4, rescore_draws=1).validate()
+
+
 def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
     from lmjx.simulate_gpu import warp_problem
     from lmjx.trial import resolve_simulator

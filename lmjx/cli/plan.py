@@ -82,7 +82,35 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "--asm-settings paper, which scores by the straight distance and takes no weight); 0: the path length "
         "around the fixed obstacles alone (docs/EVALUATION.md)",
     )
+    p.add_argument(
+        "--rescore-top",
+        type=_nonnegative_int,
+        default=0,
+        metavar="N",
+        help="greedy simulates its N best candidates again, each from --rescore-draws - 1 more starts with every "
+        "object's observed pose redrawn by the camera's noise (2 mm, 1.5 deg), and takes the one whose mean score "
+        "over all its starts is lowest (a push whose outcome hangs on millimetres no longer wins on one lucky "
+        "rollout; costs N x (K - 1) more rollouts a decision); default 0: off (a lever for the tunnel, "
+        "docs/EVALUATION.md)",
+    )
+    p.add_argument(
+        "--rescore-draws",
+        type=_nonnegative_int,
+        default=8,
+        metavar="K",
+        help="starts per rescored candidate, the observed one included (default 8; at least 2)",
+    )
     _add_sim(p)
+
+
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be at least 0, got {text}")
+    return value
 
 
 def _nonnegative_float(text: str) -> float:
@@ -111,7 +139,7 @@ def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConf
 
     return planner_config(
         asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start,
-        args.push_weight,
+        args.push_weight, args.rescore_top, args.rescore_draws,
     )  # fmt: skip
 
 
@@ -145,7 +173,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
         candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck,
-        late_start=args.late_start, push_weight=args.push_weight, sim=args.sim,
+        late_start=args.late_start, push_weight=args.push_weight, rescore_top=args.rescore_top,
+        rescore_draws=args.rescore_draws, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
