@@ -246,7 +246,7 @@ def planner_config(
     when_stuck: str = "best",
     late_start: bool = False,
     push_weight: float | None = None,
-    rescore_top: int = 0,
+    rescore_top: int | None = None,
     rescore_draws: int = 8,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
@@ -257,7 +257,8 @@ def planner_config(
     (`PlannerConfig.late_start`), `push_weight` the score's weight on where the map pushes
     toward the goal (`PlannerConfig.push_weight`; None: 1 with lmjx's settings, 0 with the
     paper's, which refuse any other), `rescore_top` and `rescore_draws` Greedy's second look at
-    its best candidates from redrawn observations (`PlannerConfig.rescore_top`; 0: off)."""
+    its best candidates from redrawn observations (`PlannerConfig.rescore_top`; None: 8 with
+    lmjx's settings, 0 (off) with the paper's; a number given is kept with either)."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -266,11 +267,12 @@ def planner_config(
         greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
         when_stuck=when_stuck,
         late_start=late_start,
-        rescore_top=rescore_top,
         rescore_draws=rescore_draws,
     )
     if asm_settings == "paper":
         config = config.paper()
+    if rescore_top is not None:  # given: kept, with either settings
+        config = replace(config, rescore_top=rescore_top)
     if push_weight is not None:  # given: kept, and refused with the paper's settings (`validate`)
         config = replace(config, push_weight=push_weight)
     config.validate()
@@ -289,7 +291,7 @@ def plan_task(
     when_stuck: str = "best",
     late_start: bool = False,
     push_weight: float | None = None,
-    rescore_top: int = 0,
+    rescore_top: int | None = None,
     rescore_draws: int = 8,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
@@ -311,7 +313,7 @@ def plan_task(
     map's edges push toward the goal (`PlannerConfig.push_weight`; default 1, 0 with the
     paper's settings); `rescore_top`, `rescore_draws`: Greedy simulates its `rescore_top` best
     candidates again from `rescore_draws - 1` redrawn observations and takes the best mean
-    (`PlannerConfig.rescore_top`; 0, the default: off);
+    (`PlannerConfig.rescore_top`; default 8, 0 with the paper's settings; 0: off);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,

@@ -87,11 +87,13 @@ class PlannerConfig:
     # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.pushfield`:
     # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`).
     # 1 since 2026-11-27 (benchmarks/evaluation_plan_2026-11-27.md; 0 before)
-    rescore_top: int = 0  # > 0: Greedy simulates its this many best candidates again from
+    rescore_top: int = 8  # > 0: Greedy simulates its this many best candidates again from
     # rescore_draws - 1 more starts, every object's observed pose redrawn with the observation
     # noise the "real" world's camera has (`RESCORE_POS_NOISE`, `RESCORE_YAW_NOISE`), and takes
     # the one with the lowest mean score over the rescore_draws starts (the observed one
-    # included): a push whose outcome hangs on millimetres no longer wins on one lucky rollout
+    # included): a push whose outcome hangs on millimetres no longer wins on one lucky rollout.
+    # 8 since 2026-11-27 (0 before: benchmarks/evaluation_plan_2026-11-28.md, the fourteenth
+    # session's rule); 0: off
     rescore_draws: int = 8
 
     __repr__ = config_repr
@@ -122,9 +124,10 @@ class PlannerConfig:
         """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
         distance to the goal, Lazy over all the edges over the target in random order with no
         fallback (when none moves the target toward the goal: no action), Greedy on a uniform
-        subset of a quarter of them (no push weight: it weighs the path length, not used)."""
+        subset of a quarter of them (no push weight: it weighs the path length, not used; no
+        rescoring: the paper's Greedy takes its best simulated candidate)."""
         return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
-                       greedy_fraction=0.25, push_weight=0.0)  # fmt: skip
+                       greedy_fraction=0.25, push_weight=0.0, rescore_top=0)  # fmt: skip
 
     def settings(self) -> dict:
         """The refinements on or off, for the records."""
@@ -484,20 +487,21 @@ class Planner:
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
-            best = self.best_of(s, rng)
+            chosen_by = s  # what Greedy's choice (`best_of`) minimises
             if cfg.rescore_top > 0 and len(acts) > 1:
                 top = np.argsort(s, kind="stable")[: cfg.rescore_top]
                 starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws)
                 more = yield Simulate(obs.robot_q, starts, [acts[int(i)] for i in top])
                 drawn = score(self.sc, self.robot, more.objects, self.field).reshape(len(starts), len(top))
-                mean = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
-                pick = int(np.argmin(mean))
+                chosen_by = np.full(len(s), np.inf)  # only the rescored candidates, by their mean
+                chosen_by[top] = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
+            best = self.best_of(chosen_by, rng)
+            if chosen_by is not s:
                 rec.rescored = {
-                    "mean_m": round(float(mean[pick]), 4),
-                    "first_mean_m": round(float(mean[0]), 4),
-                    "changed": bool(top[pick] != best),
+                    "mean_m": round(float(chosen_by[best]), 4) if np.isfinite(chosen_by[best]) else None,
+                    "first_mean_m": round(float(chosen_by[top[0]]), 4),
+                    "changed": bool(best != top[0]),
                 }
-                best = int(top[pick])
             if cfg.when_stuck == "options" and float(s[best]) > now - cfg.min_progress:
                 best, rec.stuck = self._most_options(done.objects, s)
                 self.transits.set_scene(self.sc, obs.objects)  # the observed scene again

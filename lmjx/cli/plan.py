@@ -85,13 +85,13 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rescore-top",
         type=_nonnegative_int,
-        default=0,
+        default=None,
         metavar="N",
         help="greedy simulates its N best candidates again, each from --rescore-draws - 1 more starts with every "
         "object's observed pose redrawn by the camera's noise (2 mm, 1.5 deg), and takes the one whose mean score "
         "over all its starts is lowest (a push whose outcome hangs on millimetres no longer wins on one lucky "
-        "rollout; costs N x (K - 1) more rollouts a decision); default 0: off (a lever for the tunnel, "
-        "docs/EVALUATION.md)",
+        "rollout; N x (K - 1) more rollouts a decision); default 8 (0 with --asm-settings paper); 0: off "
+        "(docs/EVALUATION.md, the fourteenth session)",
     )
     p.add_argument(
         "--rescore-draws",
