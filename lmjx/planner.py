@@ -10,7 +10,8 @@ choose one by the action selection mechanism (ASM):
             best simulated one);
   * greedy: a uniform subset of `greedy_candidates` edges simulated in one batch; the one
             that leaves the target closest to the goal (with a penalty for every object that
-            leaves the table) is taken.
+            leaves the table) is taken; by default its `rescore_top` best are first simulated
+            again from redrawn observations (`drawn_starts`), the best mean taken.
 "Closest" is the path length around the fixed obstacles (`GoalField`; the plain distance
 where nothing is in the way).  An edge that was executed and did not bring the target closer
 is not offered again while the target stays where it was (the simulator was wrong about it
