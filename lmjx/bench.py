@@ -502,6 +502,8 @@ def _print_planner(pl: dict) -> None:
         )
     g = pl["decision"]
     print(
-        f"    one Greedy decision ({g['simulator']}, {g['candidates']} candidates, transits included): "
+        f"    one Greedy decision ({g['simulator']}, {g['candidates']} candidates"
+        + (f", its best {g['rescored']} rescored" if g.get("rescored") else "")
+        + ", transits included): "
         f"{g['seconds']:.2f} s, of which simulation {g['simulation_seconds']:.2f} s"
     )

@@ -169,7 +169,7 @@ def evaluate(
                     "stopped": res.stopped,
                     "sim": config.backend if a != "random" else "none",
                     "candidates": config.planner.greedy_candidates if a == "greedy" else None,
-                    "asm_settings": config.planner.settings(),
+                    "asm_settings": config.planner.settings(a),
                     "steps": res.action_records(),
                     # the decision that found no action, where one ended the trial: why (`StepRecord.no_action`)
                     **({"no_action": res.steps[-1].no_action} if res.steps and res.steps[-1].no_action else {}),

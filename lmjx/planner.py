@@ -130,8 +130,8 @@ class PlannerConfig:
         return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
                        greedy_fraction=0.25, push_weight=0.0, rescore_top=0)  # fmt: skip
 
-    def settings(self) -> dict:
-        """The refinements on or off, for the records."""
+    def settings(self, asm: str | None = None) -> dict:
+        """The refinements on or off, for the records of `asm` (default: this config's)."""
         greedy = f"{self.greedy_candidates} candidates"
         if self.greedy_fraction is not None:
             greedy = f"{self.greedy_fraction:g} of the edges over the target"
@@ -144,8 +144,12 @@ class PlannerConfig:
             "when_stuck": self.when_stuck,
             "late_start": self.late_start,
             "push_weight": self.push_weight,
-            # (only when on: the records of runs before it existed read the same)
-            **({"rescore": f"best {self.rescore_top}, {self.rescore_draws} starts"} if self.rescore_top else {}),
+            # (only Greedy's, and only when on: the records of runs before it existed read the same)
+            **(
+                {"rescore": f"best {self.rescore_top}, {self.rescore_draws} starts"}
+                if self.rescore_top and (asm or self.asm) == "greedy"
+                else {}
+            ),
         }
 
 
@@ -312,19 +316,27 @@ def score(sc: Scenario, robot: Robot, objects: np.ndarray, field: GoalField | No
     return np.where(off[..., 0], TARGET_LOST, s)
 
 
-def drawn_starts(objects: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+def _finite_m(x: float) -> float | None:
+    """A score for the records: metres to 0.1 mm, None where not finite (JSON has no infinity)."""
+    return round(float(x), 4) if np.isfinite(x) else None
+
+
+def drawn_starts(objects: np.ndarray, k: int, rng: np.random.Generator, resting_z: np.ndarray) -> np.ndarray:
     """k copies (k, n, 7) of the observed objects (n, 7), each object's x, y and yaw redrawn
-    about what was observed with the observation noise (RESCORE_POS_NOISE, RESCORE_YAW_NOISE);
-    an object seen off the table or not upright (fallen) keeps its pose."""
+    about what was observed with the observation noise (RESCORE_POS_NOISE, RESCORE_YAW_NOISE).
+    An object seen more than 1 cm off its resting height `resting_z` (n,) (fallen, lifted or
+    off the table: how the "real" world's observation tells them, `executor.observe`) keeps
+    its pose as seen."""
     out = np.repeat(objects[None].astype(np.float64), k, axis=0)
     n = len(objects)
-    upright = np.abs(np.abs(objects[:, 3]) ** 2 + objects[:, 6] ** 2 - 1.0) < 1e-6  # a turn about z only
+    upright = np.abs(objects[:, 2] - resting_z) < 0.01
     dxy = rng.normal(0.0, RESCORE_POS_NOISE, (k, n, 2))
     dyaw = rng.normal(0.0, RESCORE_YAW_NOISE, (k, n))
-    yaw = 2.0 * np.arctan2(objects[:, 6], objects[:, 3])
+    yaw = 2.0 * np.arctan2(objects[:, 6], objects[:, 3])  # (an upright object is seen turned about z only)
     out[:, :, :2] += np.where(upright[None, :, None], dxy, 0.0)
-    new_yaw = np.where(upright[None], yaw[None] + dyaw, yaw[None])
+    new_yaw = yaw[None] + dyaw
     out[:, :, 3] = np.where(upright[None], np.cos(new_yaw / 2), out[:, :, 3])
+    out[:, :, 4:6] = np.where(upright[None, :, None], 0.0, out[:, :, 4:6])
     out[:, :, 6] = np.where(upright[None], np.sin(new_yaw / 2), out[:, :, 6])
     return out
 
@@ -491,21 +503,26 @@ class Planner:
             chosen_by = s  # what Greedy's choice (`best_of`) minimises
             if cfg.rescore_top > 0 and len(acts) > 1:
                 top = np.argsort(s, kind="stable")[: cfg.rescore_top]
-                starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws)
+                resting = np.array([b.zc for b in self.sc.movable])
+                starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws, resting)
                 more = yield Simulate(obs.robot_q, starts, [acts[int(i)] for i in top])
                 drawn = score(self.sc, self.robot, more.objects, self.field).reshape(len(starts), len(top))
+                mean = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
                 chosen_by = np.full(len(s), np.inf)  # only the rescored candidates, by their mean
-                chosen_by[top] = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
+                chosen_by[top] = np.where(np.isnan(mean), np.inf, mean)  # (a rollout gone non-finite loses)
             best = self.best_of(chosen_by, rng)
             if chosen_by is not s:
                 rec.rescored = {
-                    "mean_m": round(float(chosen_by[best]), 4) if np.isfinite(chosen_by[best]) else None,
-                    "first_mean_m": round(float(chosen_by[top[0]]), 4),
+                    "mean_m": _finite_m(chosen_by[best]),
+                    "first_mean_m": _finite_m(chosen_by[top[0]]),
                     "changed": bool(best != top[0]),
                 }
             if cfg.when_stuck == "options" and float(s[best]) > now - cfg.min_progress:
+                rescored_pick = best
                 best, rec.stuck = self._most_options(done.objects, s)
                 self.transits.set_scene(self.sc, obs.objects)  # the observed scene again
+                if rec.rescored is not None and best != rescored_pick:
+                    rec.rescored["overridden"] = True  # the rule when stuck took another candidate
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
             rec.edge = acts[best].edge

@@ -417,8 +417,8 @@ def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
 
 def test_redrawn_observations_spread_as_the_cameras_noise():
     """`drawn_starts`: x, y and yaw of each upright object redrawn with the observation noise
-    the "real" world's camera has (the executor's figures); everything else kept; a fallen
-    object kept as seen."""
+    the "real" world's camera has (the executor's figures); everything else kept; an object
+    seen off its resting height (fallen: as the executor's observation tells it) kept as seen."""
     from lmjx.planner import RESCORE_POS_NOISE, RESCORE_YAW_NOISE, drawn_starts
 
     world = SimulatedRealWorld.__new__(SimulatedRealWorld)
@@ -426,10 +426,10 @@ def test_redrawn_observations_spread_as_the_cameras_noise():
     assert pytest.approx((world.pos_noise, world.yaw_noise)) == (RESCORE_POS_NOISE, RESCORE_YAW_NOISE)
     objects = np.zeros((3, 7))
     objects[:, :3] = [[0.5, 0.3, 0.025], [0.4, -0.1, 0.03], [0.6, 0.0, 0.01]]
-    yaws = np.array([0.3, -3.1, 0.0])
-    objects[:2, 3], objects[:2, 6] = np.cos(yaws[:2] / 2), np.sin(yaws[:2] / 2)
-    objects[2, 3:] = [np.cos(0.6), np.sin(0.6), 0.0, 0.0]  # turned about x: fallen
-    draws = drawn_starts(objects, 20_000, np.random.default_rng(3))
+    yaws = np.array([0.3, -3.1, 0.7])
+    objects[:, 3], objects[:, 6] = np.cos(yaws / 2), np.sin(yaws / 2)
+    resting = np.array([0.025, 0.03, 0.025])  # the third is seen 1.5 cm low: fallen
+    draws = drawn_starts(objects, 20_000, np.random.default_rng(3), resting)
     assert draws.shape == (20_000, 3, 7)
     assert np.array_equal(draws[:, 2], np.repeat(objects[None, 2], 20_000, axis=0))
     assert np.allclose(draws[:, :2, 2], objects[:2, 2]) and np.allclose(draws[:, :2, 4:6], 0.0)
@@ -477,7 +477,7 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
                                         None, None)  # fmt: skip
         s = score(sc, robot, sim.simulate(obs.robot_q, obs.objects, acts), planner.field)
         best = np.argsort(s, kind="stable")[:top]
-        starts = drawn_starts(obs.objects, draws - 1, np.random.default_rng(seed))
+        starts = drawn_starts(obs.objects, draws - 1, np.random.default_rng(seed), [b.zc for b in sc.movable])
         again = [score(sc, robot, sim.simulate(obs.robot_q, o, [acts[i] for i in best]), planner.field) for o in starts]
         mean = (s[best] + np.sum(again, axis=0)) / draws
         assert a.edge == acts[best[np.argmin(mean)]].edge
@@ -513,6 +513,7 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
     assert a.edge != nominal and rec.rescored["changed"] and rec.rescored["first_mean_m"] > rec.rescored["mean_m"]
     assert cfg.settings()["rescore"] == "best 3, 3 starts" and "rescore" not in PlannerConfig(rescore_top=0).settings()
     assert PlannerConfig().rescore_top == 8 and PlannerConfig().paper().rescore_top == 0
+    assert "rescore" not in PlannerConfig().settings("lazy")  # (Lazy and Random do not rescore)
     with pytest.raises(Exception, match="at least 2 starts"):
         PlannerConfig(rescore_top=4, rescore_draws=1).validate()
 
