@@ -8,7 +8,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..scenarios import PAPER_BUDGET, Scenario
-from .common import _add_device, _add_robot, _emit, _load_robot, _positive_int
+from .common import _add_device, _add_robot, _emit, _load_robot, _nonnegative_int, _positive_int
 
 if TYPE_CHECKING:
     from ..planner import PlannerConfig
@@ -101,16 +101,6 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         help="starts per rescored candidate, the observed one included (default 8; at least 2)",
     )
     _add_sim(p)
-
-
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be at least 0, got {text}")
-    return value
 
 
 def _nonnegative_float(text: str) -> float:
