@@ -171,6 +171,7 @@ class StepRecord:
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
     edge_first: int = 0  # the edge's first state executed (`Action.edge_first`: > 0 only with late_start)
     compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.compiletime`)
+    simulation_s: float = 0.0  # of planning_s, the seconds its simulations were charged (not in the records)
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
@@ -397,10 +398,7 @@ Request = Simulate | Execute
 
 def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
     c0, t0 = compile_seconds(sim), time.perf_counter()
-    if req.objects.ndim == 3:
-        final = np.concatenate(sim.simulate_many(req.parts()))
-    else:
-        final = sim.simulate(req.robot_q, req.objects, req.actions)
+    final = np.concatenate(sim.simulate_many(req.parts()))
     wall, compiled = time.perf_counter() - t0, compile_seconds(sim) - c0
     return Simulated(final, max(0.0, wall - compiled), compiled)
 
@@ -501,7 +499,8 @@ class Planner:
             done = yield Simulate(obs.robot_q, obs.objects, acts)
             s = score(self.sc, self.robot, done.objects, self.field)
             chosen_by = s  # what Greedy's choice (`best_of`) minimises
-            if cfg.rescore_top > 0 and len(acts) > 1:
+            rescoring = cfg.rescore_top > 0 and len(acts) > 1
+            if rescoring:
                 top = np.argsort(s, kind="stable")[: cfg.rescore_top]
                 resting = np.array([b.zc for b in self.sc.movable])
                 starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws, resting)
@@ -511,7 +510,7 @@ class Planner:
                 chosen_by = np.full(len(s), np.inf)  # only the rescored candidates, by their mean
                 chosen_by[top] = np.where(np.isnan(mean), np.inf, mean)  # (a rollout gone non-finite loses)
             best = self.best_of(chosen_by, rng)
-            if chosen_by is not s:
+            if rescoring:
                 rec.rescored = {
                     "mean_m": _finite_m(chosen_by[best]),
                     "first_mean_m": _finite_m(chosen_by[top[0]]),
@@ -698,6 +697,7 @@ class Planner:
                 action, rec = done.value
                 rec.compile_s = compiled + c
                 rec.planning_s = max(0.0, own + charged)
+                rec.simulation_s = charged
                 return action, rec
             c = jax_compile_seconds() - c0
             own += time.perf_counter() - t0 - c
