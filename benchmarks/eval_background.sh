@@ -9,7 +9,8 @@
 #     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
 #
 # (MAPS: the maps' folder, default /tmp/lmjx_gpu/maps; EXTRA: more `lmjx evaluate` options
-# for every run of this launch, e.g. "--seed 7 --when-stuck options")
+# for every run of this launch, e.g. "--seed 7 --when-stuck options"; QUEUE=P: run the list P
+# at a time in its order, each next one as soon as one ends, instead of all at once)
 #
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
@@ -60,10 +61,21 @@ next_gpu() {  # the GPUs in turn, across launches: "CUDA_VISIBLE_DEVICES=k" ("" 
 start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
   local name=$1 dir=$2 pin=$3 env=$4; shift 4
   rm -f "$dir.rc"  # a run started again (to resume) is running until it writes it anew
-  setsid nohup bash -c "cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
+  local job="cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
     start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
-    echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc" > /dev/null 2>&1 < /dev/null &
+    echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc"
+  if [ -n "${QUEUE:-}" ]; then  # run later, QUEUE at a time in the order given (`dispatch`)
+    printf '%s\0' "$job" >> "$JOBS"
+  else
+    setsid nohup bash -c "$job" > /dev/null 2>&1 < /dev/null &
+  fi
   echo "$name" >> "$WORK/runs"
+}
+
+dispatch() {  # the queued runs, QUEUE at a time, in a process session of its own
+  [ -n "${QUEUE:-}" ] && [ -s "$JOBS" ] || return 0
+  setsid nohup bash -c "xargs -0 -P $QUEUE -n 1 bash -c < $JOBS" > "$JOBS.log" 2>&1 < /dev/null &
+  echo "queued $(tr -cd '\0' < "$JOBS" | wc -c) runs, $QUEUE at a time"
 }
 
 case ${1:-} in
@@ -80,6 +92,7 @@ case ${1:-} in
     date -u +"launched %H:%M:%S" ;;
   launch)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
+    JOBS="$REPO/queue"
     for spec in ${RUNS:?RUNS names the runs}; do
       IFS=: read -r name sim tasks scen fail asms cpus part nice extra <<< "$spec"
       [ -n "$extra" ] && { echo "eval_background: '$spec' has more than 9 fields" >&2; exit 2; }
@@ -101,6 +114,7 @@ case ${1:-} in
       echo "$name: $env $pin lmjx evaluate $args (resuming $(count "$dir/results.json") trials)"
       start "$name" "$dir" "$pin" "$env" "-m lmjx.cli evaluate $args"
     done
+    dispatch
     date -u +"launched %H:%M:%S" ;;
   recount)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
