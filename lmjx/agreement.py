@@ -151,9 +151,8 @@ def _cpu_worker() -> None:
     (a GPU is the simulators', and each process would otherwise take most of its memory)."""
     import jax
 
-    from .cores import ONE_THREAD_XLA
-
-    os.environ["XLA_FLAGS"] = " ".join(x for x in (os.environ.get("XLA_FLAGS"), ONE_THREAD_XLA) if x)
+    one_thread = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    os.environ["XLA_FLAGS"] = " ".join(x for x in (os.environ.get("XLA_FLAGS"), one_thread) if x)
     os.environ["JAX_PLATFORMS"] = "cpu"
     jax.config.update("jax_platforms", "cpu")
 

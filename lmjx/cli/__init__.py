@@ -108,7 +108,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     import signal
 
-    from ..cores import cap_xla_threads
     from ..errors import LmjxError
 
     if threading_main():
@@ -119,7 +118,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
     try:
-        cap_xla_threads()  # LMJX_CORES=1: XLA's CPU client one thread too (before JAX starts a backend)
         gl = _gl_missing()
         if gl is not None:
             if _draws(args) and args.command != "scenarios":
