@@ -91,6 +91,9 @@ case ${1:-} in
     done
     date -u +"launched %H:%M:%S" ;;
   launch)
+    if [ -n "${QUEUE:-}" ] && ! [[ "$QUEUE" =~ ^[1-9][0-9]*$ ]]; then
+      echo "eval_background: QUEUE must be a whole number of runs at a time (1 or more), not '$QUEUE'" >&2; exit 2
+    fi
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
     JOBS="$REPO/queue"
     for spec in ${RUNS:?RUNS names the runs}; do
