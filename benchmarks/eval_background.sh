@@ -9,8 +9,9 @@
 #     WAIT_S=560 bash benchmarks/eval_background.sh wait      # again, call after call
 #
 # (MAPS: the maps' folder, default /tmp/lmjx_gpu/maps; EXTRA: more `lmjx evaluate` options
-# for every run of this launch, e.g. "--seed 7 --when-stuck options"; QUEUE=P: run the list P
-# at a time in its order, each next one as soon as one ends, instead of all at once)
+# for every run of this launch, e.g. "--seed 7 --when-stuck options"; QUEUE=P, here and for
+# calib and recount: run the list P at a time in its order, each next one as soon as one
+# ends, instead of all at once)
 #
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
@@ -65,18 +66,22 @@ start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of i
     start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
     echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc"
   if [ -n "${QUEUE:-}" ]; then  # run later, QUEUE at a time in the order given (`dispatch`)
-    printf '%s\0' "$job" >> "$JOBS"
+    printf '%s\0' "$job" >> "$REPO/queue"
   else
     setsid nohup bash -c "$job" > /dev/null 2>&1 < /dev/null &
   fi
   echo "$name" >> "$WORK/runs"
 }
 
-dispatch() {  # the queued runs, QUEUE at a time, in a process session of its own
-  [ -n "${QUEUE:-}" ] && [ -s "$JOBS" ] || return 0
-  setsid nohup bash -c "xargs -0 -P $QUEUE -n 1 bash -c < $JOBS" > "$JOBS.log" 2>&1 < /dev/null &
-  echo "queued $(tr -cd '\0' < "$JOBS" | wc -c) runs, $QUEUE at a time"
+dispatch() {  # this launch's queued runs ($REPO/queue), QUEUE at a time, in a process session of its own
+  [ -n "${QUEUE:-}" ] && [ -s "$REPO/queue" ] || return 0
+  setsid nohup bash -c "xargs -0 -P $QUEUE -n 1 bash -c < $REPO/queue" > "$REPO/queue.log" 2>&1 < /dev/null &
+  echo "queued $(tr -cd '\0' < "$REPO/queue" | wc -c) runs, $QUEUE at a time"
 }
+
+if [ -n "${QUEUE:-}" ] && ! [[ "$QUEUE" =~ ^[1-9][0-9]*$ ]]; then
+  echo "eval_background: QUEUE must be a whole number of runs at a time (1 or more), not '$QUEUE'" >&2; exit 2
+fi
 
 case ${1:-} in
   calib)
@@ -89,13 +94,10 @@ case ${1:-} in
       echo "$name: $pin $args"
       start "$name" "$dir" "$pin" "JAX_PLATFORMS=cpu" "$args"
     done
+    dispatch
     date -u +"launched %H:%M:%S" ;;
   launch)
-    if [ -n "${QUEUE:-}" ] && ! [[ "$QUEUE" =~ ^[1-9][0-9]*$ ]]; then
-      echo "eval_background: QUEUE must be a whole number of runs at a time (1 or more), not '$QUEUE'" >&2; exit 2
-    fi
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels pyproject.toml "$REPO/"
-    JOBS="$REPO/queue"
     for spec in ${RUNS:?RUNS names the runs}; do
       IFS=: read -r name sim tasks scen fail asms cpus part nice extra <<< "$spec"
       [ -n "$extra" ] && { echo "eval_background: '$spec' has more than 9 fields" >&2; exit 2; }
@@ -131,6 +133,7 @@ case ${1:-} in
       echo "$name: ${EXECUTOR:-the executor of this checkout}: $args"
       start "$name" "$dir" "" "XLA_PYTHON_CLIENT_PREALLOCATE=false $(next_gpu)" "$args"
     done
+    dispatch
     date -u +"launched %H:%M:%S" ;;
   wait)
     end=$(( $(date +%s) + ${WAIT_S:-560} ))
