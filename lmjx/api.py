@@ -248,6 +248,7 @@ def planner_config(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
+    servo: str = "playback",
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
@@ -258,7 +259,8 @@ def planner_config(
     toward the goal (`PlannerConfig.push_weight`; None: 1 with lmjx's settings, 0 with the
     paper's, which refuse any other), `rescore_top` and `rescore_draws` Greedy's second look at
     its best candidates from redrawn observations (`PlannerConfig.rescore_top`; None: 8 with
-    lmjx's settings, 0 (off) with the paper's; a number given is kept with either)."""
+    lmjx's settings, 0 (off) with the paper's; a number given is kept with either), `servo` the
+    planner simulator's servo model (`PlannerConfig.servo`: "playback" or "robot")."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -268,6 +270,7 @@ def planner_config(
         when_stuck=when_stuck,
         late_start=late_start,
         rescore_draws=rescore_draws,
+        servo=servo,
     )
     if asm_settings == "paper":
         config = config.paper()
@@ -293,6 +296,7 @@ def plan_task(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
+    servo: str = "playback",
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -314,6 +318,8 @@ def plan_task(
     paper's settings); `rescore_top`, `rescore_draws`: Greedy simulates its `rescore_top` best
     candidates again from `rescore_draws - 1` redrawn observations and takes the best mean
     (`PlannerConfig.rescore_top`; default 8, 0 with the paper's settings; 0: off);
+    `servo`: how the planner's simulator tracks the arm's joint targets ("playback", stiff
+    servos, or "robot", the robot's own gains and torque limits: `PlannerConfig.servo`);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
@@ -364,11 +370,11 @@ def plan_task(
         sim_name, why = resolve_simulator(sim)
     config = planner_config(
         asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight, rescore_top,
-        rescore_draws,
+        rescore_draws, servo,
     )  # fmt: skip
     if say is not None and sim_name != "none":  # once the settings are checked
         say(f"simulator {sim_name} ({why})")
-    simulator = make_simulator(rob, scenario, sim_name, tasks) if sim_name != "none" else None
+    simulator = make_simulator(rob, scenario, sim_name, tasks, servo=config.servo) if sim_name != "none" else None
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None
     if render is not None:

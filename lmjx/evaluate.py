@@ -139,7 +139,11 @@ def evaluate(
     threads = usable_cores()
     for s in sorted({k[1] for k in todo}):
         group = [k for k in todo if k[1] == s]
-        sim = make_simulator(robot, s, config.backend, config.tasks) if any(k[2] != "random" for k in group) else None
+        sim = (
+            make_simulator(robot, s, config.backend, config.tasks, servo=config.planner.servo)
+            if any(k[2] != "random" for k in group)
+            else None
+        )
         batched = bool(sim is not None and sim.prefers_batches)
         transits = {f: TransitPlanner(robot, maps[f].failure, batched=batched) for f in {k[0] for k in group}}
         trials = []

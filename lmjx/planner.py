@@ -49,6 +49,7 @@ ASMS = ("random", "lazy", "greedy")
 OFF_TABLE_PENALTY = 1.0  # [m] per object that leaves the table
 TARGET_LOST = 10.0  # [m] when the target leaves the table
 WHEN_STUCK = ("best", "options")
+SERVOS = ("playback", "robot")  # the planner simulator's servo models (`PlannerConfig.servo`)
 # rescoring's draws of the observed poses: the "real" world's observation noise
 # (`executor.SimulatedRealWorld`: x, y each N(0, 2 mm), yaw N(0, 1.5 deg))
 RESCORE_POS_NOISE = 0.002  # [m]
@@ -96,6 +97,10 @@ class PlannerConfig:
     # 8 since 2026-11-27 (0 before: benchmarks/evaluation_plan_2026-11-28.md, the fourteenth
     # session's rule); 0: off
     rescore_draws: int = 8
+    servo: str = "playback"  # the planner's simulator tracks the arm's joint targets: "playback"
+    # (stiff servos, unlimited torque: near-exact playback of the trajectory) or "robot" (the
+    # robot's own joint servo gains and torque limits, `executor.real_gains`: the controller
+    # the arm runs, so the simulated push lags and overshoots as the arm's does)
 
     __repr__ = config_repr
 
@@ -120,6 +125,8 @@ class PlannerConfig:
                               f"{self.rescore_draws}")  # fmt: skip
         if self.when_stuck not in WHEN_STUCK:
             raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
+        if self.servo not in SERVOS:
+            raise ConfigError(f"unknown servo model '{self.servo}'; use {' or '.join(SERVOS)}")
 
     def paper(self) -> PlannerConfig:
         """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
@@ -150,6 +157,8 @@ class PlannerConfig:
                 if self.rescore_top and (asm or self.asm) == "greedy"
                 else {}
             ),
+            # (only where not the playback, and only for the ASMs that simulate: as above)
+            **({"servo": self.servo} if self.servo != "playback" and (asm or self.asm) != "random" else {}),
         }
 
 

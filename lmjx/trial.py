@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 from .actions import TransitPlanner
 from .errors import ConfigError
-from .executor import SimulatedRealWorld
+from .executor import SimulatedRealWorld, real_gains
 from .mapfile import MapFile
 from .planner import ASMS, Planner, PlannerConfig, TrialResult
 from .robot import Robot
 from .scenarios import Layout, sample_layout, scenario
-from .scene import build_scene
+from .scene import Physics, build_scene
 from .simulate import CpuSimulator, Simulator
 
 SIMULATORS = ("auto", "cpu", "cpu-near", "gpu")
@@ -50,23 +50,42 @@ def resolve_simulator(choice: str) -> tuple[str, str]:
     return choice, "asked for"
 
 
+def planner_physics(robot: Robot, servo: str = "playback") -> Physics:
+    """The planner's physics (`PlannerConfig.servo`): the nominal objects and table, the arm's
+    joints tracked by stiff servos with unlimited torque ("playback") or by the robot's own
+    servo gains and torque limits ("robot", as the arm's controller tracks them).  Nothing of
+    what the planner cannot know (a trial's frictions, masses, capsule sizes) is in either."""
+    if servo == "playback":
+        return Physics()
+    if servo != "robot":
+        raise ConfigError(f"unknown servo model '{servo}'; use playback or robot")
+    kp, kv = real_gains(robot)
+    return Physics(servo_kp=kp, servo_kv=kv, servo_force=tuple(robot.tau_max))
+
+
 def make_simulator(
-    robot: Robot, scenario_number: int, backend: str = "cpu", tasks: str = "paper", gpu_config=None
+    robot: Robot,
+    scenario_number: int,
+    backend: str = "cpu",
+    tasks: str = "paper",
+    gpu_config=None,
+    servo: str = "playback",
 ) -> Simulator:
     """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
     or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
-    whole scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device).  `backend` is
-    resolved already (see `resolve_simulator`)."""
+    whole scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device), with the servo
+    model `servo` (`planner_physics`).  `backend` is resolved already (see `resolve_simulator`)."""
     sc = scenario(scenario_number, robot.profile.task_scale, tasks)
+    physics = planner_physics(robot, servo)
     if backend == "gpu":
         from .simulate_gpu import GpuSimulator
 
-        return GpuSimulator(build_scene(robot, sc, fuse_static=True), config=gpu_config)
+        return GpuSimulator(build_scene(robot, sc, physics, fuse_static=True), config=gpu_config)
     if backend == "cpu-near":
-        return CpuSimulator(build_scene(robot, sc), k_objects=4, robot=robot)
+        return CpuSimulator(build_scene(robot, sc, physics), k_objects=4, robot=robot)
     if backend != "cpu":
         raise ConfigError(f"unknown simulator '{backend}'; use cpu, cpu-near or gpu")
-    return CpuSimulator(build_scene(robot, sc))
+    return CpuSimulator(build_scene(robot, sc, physics))
 
 
 def setup_trial(
@@ -84,7 +103,9 @@ def setup_trial(
     transits through the park pose)."""
     sc = scenario(scenario_number, robot.profile.task_scale, tasks)
     assert map_file.reach is not None and map_file.edges is not None
-    sim = simulator or (make_simulator(robot, scenario_number, tasks=tasks) if config.asm != "random" else None)
+    sim = simulator or (
+        make_simulator(robot, scenario_number, tasks=tasks, servo=config.servo) if config.asm != "random" else None
+    )
     planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config, transits)
     return TrialSetup(
         planner, sample_layout(sc, seed), SimulatedRealWorld(robot, seed), seed * 7 + ASMS.index(config.asm)

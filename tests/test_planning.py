@@ -1355,3 +1355,32 @@ def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
             assert (res.success, res.actions) == want, (i, tr["seed"], res.reason, want)
     # the cases the goals were placed for: a stop on the goal, a pass 5 mm inside it, the budget
     assert got[0, pick["seed"]] == 1 and got[1, pick["seed"]] >= 2 and got[2, pick["seed"]] == 1, got
+
+
+def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
+    """`--servo robot`: the planner's simulator tracks joint targets with the robot's own servo
+    gains and torque limits.  Against the "real" world's physics with its per-trial draws set
+    to nominal (frictions, masses, capsules: what the planner cannot know) and only its servos
+    and table contacts left, the planner's "robot" servo predicts where each push leaves the
+    target to a micrometre, and playback (the default) does not."""
+    from dataclasses import replace
+
+    from lmjx.bench_planner import candidate_actions
+    from lmjx.trial import make_simulator
+
+    _mf, sc, _scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, 6, 0, planner_scene=False)
+    drawn = real_physics(robot, len(sc.movable), np.random.default_rng(0))
+    servos_only = replace(drawn, friction_scale=(), mass_scale=(), table_friction=0.5, robot_radius_offset=0.0)
+    real = CpuSimulator(build_scene(robot, sc, servos_only), threads=1).simulate(tp.park, objects, acts)[:, 0, :2]
+    ends = {}
+    for servo in ("robot", "playback"):
+        sim = make_simulator(robot, 3, "cpu", "hard", servo=servo)
+        ends[servo] = np.hypot(*(sim.simulate(tp.park, objects, acts)[:, 0, :2] - real).T)
+    moved = np.hypot(*(real - objects[0, :2]).T)
+    assert moved.max() > 0.01, moved  # the actions push the target
+    assert ends["robot"].max() < 1e-6, ends["robot"]
+    assert ends["playback"].max() > 1e-3, ends["playback"]  # the servos matter to where a push ends
+    assert PlannerConfig(servo="robot").settings("greedy")["servo"] == "robot"
+    assert "servo" not in PlannerConfig(servo="robot").settings("random") and "servo" not in PlannerConfig().settings()
+    with pytest.raises(Exception, match="unknown servo model 'stiff'"):
+        PlannerConfig(servo="stiff").validate()

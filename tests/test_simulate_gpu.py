@@ -135,10 +135,18 @@ def candidates(robot, small_map):
 
 
 @needs_warp
-def test_gpu_simulator_matches_c_mujoco(robot, candidates):
+@pytest.mark.parametrize("servo", ["playback", "robot"])
+def test_gpu_simulator_matches_c_mujoco(robot, candidates, servo):
+    """Both servo models (`PlannerConfig.servo`): "robot" limits each joint's torque
+    (`jnt_actfrcrange`) and tracks with the robot's softer gains."""
+    from lmjx.trial import planner_physics
+
     sc, scene, objects, q0, acts = candidates
+    physics = planner_physics(robot, servo)
+    if servo != "playback":
+        scene = build_scene(robot, sc, physics)
     ref = CpuSimulator(scene).simulate(q0, objects, acts)
-    sim = GpuSimulator(build_scene(robot, sc, fuse_static=True), config=_sim_config())
+    sim = GpuSimulator(build_scene(robot, sc, physics, fuse_static=True), config=_sim_config())
     out = sim.simulate(q0, objects, acts)
     assert out.shape == ref.shape and np.isfinite(out).all()
     d = np.hypot(*(out[:, :, :2] - ref[:, :, :2]).reshape(-1, 2).T)

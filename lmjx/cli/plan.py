@@ -100,6 +100,15 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         metavar="K",
         help="starts per rescored candidate, the observed one included (default 8; at least 2)",
     )
+    p.add_argument(
+        "--servo",
+        choices=("playback", "robot"),
+        default="playback",
+        help="how the planner's simulator tracks the arm's joint targets: playback (default: stiff servos with "
+        "unlimited torque, the trajectory played back nearly exactly) or robot (the robot's own joint servo gains "
+        "and torque limits, as its controller tracks them: pushes lag and overshoot as the arm's do; "
+        "docs/EVALUATION.md, the sixteenth session)",
+    )
     _add_sim(p)
 
 
@@ -129,7 +138,7 @@ def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConf
 
     return planner_config(
         asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start,
-        args.push_weight, args.rescore_top, args.rescore_draws,
+        args.push_weight, args.rescore_top, args.rescore_draws, args.servo,
     )  # fmt: skip
 
 
@@ -164,7 +173,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
         candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck,
         late_start=args.late_start, push_weight=args.push_weight, rescore_top=args.rescore_top,
-        rescore_draws=args.rescore_draws, sim=args.sim,
+        rescore_draws=args.rescore_draws, servo=args.servo, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
     )  # fmt: skip
