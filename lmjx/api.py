@@ -248,7 +248,7 @@ def planner_config(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
-    servo: str = "playback",
+    servo: str = "robot",
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
@@ -260,7 +260,7 @@ def planner_config(
     paper's, which refuse any other), `rescore_top` and `rescore_draws` Greedy's second look at
     its best candidates from redrawn observations (`PlannerConfig.rescore_top`; None: 8 with
     lmjx's settings, 0 (off) with the paper's; a number given is kept with either), `servo` the
-    planner simulator's servo model (`PlannerConfig.servo`: "playback" or "robot")."""
+    planner simulator's servo model (`PlannerConfig.servo`: "robot", the default, or "playback")."""
     from .trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
@@ -296,7 +296,7 @@ def plan_task(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
-    servo: str = "playback",
+    servo: str = "robot",
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
@@ -318,8 +318,8 @@ def plan_task(
     paper's settings); `rescore_top`, `rescore_draws`: Greedy simulates its `rescore_top` best
     candidates again from `rescore_draws - 1` redrawn observations and takes the best mean
     (`PlannerConfig.rescore_top`; default 8, 0 with the paper's settings; 0: off);
-    `servo`: how the planner's simulator tracks the arm's joint targets ("playback", stiff
-    servos, or "robot", the robot's own gains and torque limits: `PlannerConfig.servo`);
+    `servo`: how the planner's simulator tracks the arm's joint targets ("robot", the default:
+    the robot's own gains and torque limits, or "playback": stiff servos; `PlannerConfig.servo`);
     `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
     with this robot (default: the one it names); `failure`: refuse a map built for another
     failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,

@@ -97,10 +97,12 @@ class PlannerConfig:
     # 8 since 2026-11-27 (0 before: benchmarks/evaluation_plan_2026-11-28.md, the fourteenth
     # session's rule); 0: off
     rescore_draws: int = 8
-    servo: str = "playback"  # the planner's simulator tracks the arm's joint targets: "playback"
-    # (stiff servos, unlimited torque: near-exact playback of the trajectory) or "robot" (the
-    # robot's own joint servo gains and torque limits, `executor.real_gains`: the controller
-    # the arm runs, so the simulated push lags and overshoots as the arm's does)
+    servo: str = "robot"  # the planner's simulator tracks the arm's joint targets with "robot":
+    # the robot's own joint servo gains and torque limits (`executor.real_gains`: the controller
+    # the arm runs, so a simulated push lags and overshoots as the arm's does), or "playback":
+    # stiff servos with unlimited torque (near-exact playback of the trajectory).  "robot" since
+    # 2026-11-27 (playback before: benchmarks/evaluation_plan_2026-11-28.md, the sixteenth
+    # session's rule)
 
     __repr__ = config_repr
 
@@ -157,7 +159,8 @@ class PlannerConfig:
                 if self.rescore_top and (asm or self.asm) == "greedy"
                 else {}
             ),
-            # (only where not the playback, and only for the ASMs that simulate: as above)
+            # (only where not the playback, the only model before this setting existed, and only
+            # for the ASMs that simulate: as above)
             **({"servo": self.servo} if self.servo != "playback" and (asm or self.asm) != "random" else {}),
         }
 

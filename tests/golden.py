@@ -37,7 +37,8 @@ transit has none and is as it was; Lazy's and Greedy's second transit (the retre
 has one: the same edges, execution 8.42 -> 8.82 s, final distances 1 nm apart.  The
 trials run with no push weight (`PlannerConfig.push_weight`, the default until 2026-11-27,
 when it became 1) and no rescoring (`PlannerConfig.rescore_top`, 0 until 2026-11-27, then
-8): the file tests how the robot is represented, not the planner's defaults.
+8) and the playback servos (`PlannerConfig.servo`, the only model until 2026-11-27, then
+"robot"): the file tests how the robot is represented, not the planner's defaults.
 """
 
 from __future__ import annotations
@@ -86,6 +87,7 @@ def trial_figures(path: str) -> dict:
         cfg = PlannerConfig(
             asm=asm, max_actions=TRIAL["max_actions"], greedy_candidates=TRIAL["greedy_candidates"],
             lazy_tries=TRIAL["lazy_tries"], push_weight=0.0, rescore_top=0,  # (the defaults until 2026-11-27)
+            servo="playback",
         )  # fmt: skip
         res = run_trial(setup_trial(robot, m, TRIAL["scenario"], cfg, seed=TRIAL["seed"], tasks="hard"))
         out[asm] = {

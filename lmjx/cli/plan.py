@@ -103,11 +103,11 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--servo",
         choices=("playback", "robot"),
-        default="playback",
-        help="how the planner's simulator tracks the arm's joint targets: playback (default: stiff servos with "
-        "unlimited torque, the trajectory played back nearly exactly) or robot (the robot's own joint servo gains "
-        "and torque limits, as its controller tracks them: pushes lag and overshoot as the arm's do; "
-        "docs/EVALUATION.md, the sixteenth session)",
+        default="robot",
+        help="how the planner's simulator tracks the arm's joint targets: robot (default: the robot's own joint "
+        "servo gains and torque limits, as its controller tracks them: simulated pushes lag and overshoot as the "
+        "arm's do) or playback (stiff servos with unlimited torque, the trajectory played back nearly exactly; "
+        "the only model before 2026-11-27; docs/EVALUATION.md, the sixteenth session)",
     )
     _add_sim(p)
 
