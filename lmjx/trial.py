@@ -74,7 +74,9 @@ def make_simulator(
     """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
     or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
     whole scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device), with the servo
-    model `servo` (`planner_physics`).  `backend` is resolved already (see `resolve_simulator`)."""
+    model `servo` (`planner_physics`; the planner passes its own, `PlannerConfig.servo`, "robot"
+    by default; "playback" here, the model the simulators' agreement tests and benchmarks
+    measure).  `backend` is resolved already (see `resolve_simulator`)."""
     sc = scenario(scenario_number, robot.profile.task_scale, tasks)
     physics = planner_physics(robot, servo)
     if backend == "gpu":

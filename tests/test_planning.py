@@ -228,8 +228,9 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
                            "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
             "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options",
-            "late_start": True, "push_weight": 0.0}  # fmt: skip
+            "late_start": True, "push_weight": 0.0, "servo": "robot"}  # fmt: skip
     assert out["asm_settings"]["when_stuck"] == "best" and out["asm_settings"]["late_start"] is False
+    assert out["asm_settings"]["servo"] == "robot"  # the default since 2026-11-27 (the ASMs' settings keep it)
     assert paper["asm_settings"] == want
     for args, message in (
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
@@ -798,15 +799,18 @@ def paired_decisions(
     simulated candidates (to show that the test notices); `greedy`: Greedy's settings apart
     from the defaults.  (15 starts until 2026-11-27: with rescoring the default, one pair
     there went from a tie to a loss, 12 wins to 3, p = 0.018; over 40 starts rescoring on and
-    off both win 29 to 4.  At 15 one pair decided the test.)"""
+    off both win 29 to 4.  At 15 one pair decided the test.)  Greedy simulates with its
+    servo model (`PlannerConfig.servo`, "robot" by default since 2026-11-27)."""
     from lmjx.planner import Planner
+    from lmjx.trial import planner_physics
 
     m = load_map(small_map)
     transits = TransitPlanner(robot, m.failure)
     out = []
     for number in (1,):
         sc = scenario(number, tasks="hard")
-        sim = CpuSimulator(build_scene(robot, sc))
+        # the planner's simulator as `lmjx plan` makes it: with Greedy's servo model
+        sim = CpuSimulator(build_scene(robot, sc, planner_physics(robot, PlannerConfig(**greedy).servo)))
         planners = {}
         for asm in ("greedy", "random"):
             config = PlannerConfig(asm=asm, greedy_candidates=8, **(greedy if asm == "greedy" else {}))
