@@ -565,13 +565,7 @@ class TransitPlanner:
         if self.scene is None:
             return None
         q = np.asarray(q_now, np.float64).copy()
-        free = np.asarray(self.failure.free(len(q)))
-        axes = np.zeros((2 * len(free), len(q)))
-        axes[np.arange(len(free)), free] = 1.0
-        axes[len(free) + np.arange(len(free)), free] = -1.0
-        mix = np.zeros((ESCAPE_DIRS, len(q)))
-        mix[:, free] = np.random.default_rng(0).uniform(-1.0, 1.0, (ESCAPE_DIRS, len(free)))
-        dirs = np.concatenate([axes, mix / np.abs(mix).max(axis=1, keepdims=True)])
+        dirs = self.escape_directions(len(q))
         relax = (OBJECT_MARGIN - JAM_MARGIN) * self.scene.movable  # (nb,) added to the full margins' slacks
         slack = self.scene_slacks(q[None])[0]
         start = slack + relax  # against the reduced margins: how deep the arm began in each
@@ -606,6 +600,17 @@ class TransitPlanner:
             return self._back_along(np.asarray(q_now, np.float64), np.asarray(way), every=True)
         finally:
             self._relax = 0.0
+
+    def escape_directions(self, nq: int) -> np.ndarray:
+        """The escape's directions (n, nq), each scaled to a largest joint motion of 1: each free
+        joint either way, then ESCAPE_DIRS seeded mixtures of the free joints."""
+        free = np.asarray(self.failure.free(nq))
+        axes = np.zeros((2 * len(free), nq))
+        axes[np.arange(len(free)), free] = 1.0
+        axes[len(free) + np.arange(len(free)), free] = -1.0
+        mix = np.zeros((ESCAPE_DIRS, nq))
+        mix[:, free] = np.random.default_rng(0).uniform(-1.0, 1.0, (ESCAPE_DIRS, len(free)))
+        return np.concatenate([axes, mix / np.abs(mix).max(axis=1, keepdims=True)])
 
     def trail_back(self, source: np.ndarray, trail: np.ndarray) -> np.ndarray:
         """The way the arm came, back from `source`, as roadmap nodes (k, nj): the states of

@@ -21,24 +21,13 @@ import sys
 
 import numpy as np
 
-from lmjx.actions import ESCAPE_DIRS, ESCAPE_STEP, JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN, after_executing
+from lmjx.actions import ESCAPE_STEP, JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN, after_executing
 from lmjx.mapfile import load_map
 from lmjx.planner import PlannerConfig
 from lmjx.robot import load_robot
 from lmjx.trial import make_simulator, setup_trial
 
 EDGE, SEED, SCENARIO = 12990, 1005, 1
-
-
-def escape_directions(tp, q: np.ndarray) -> np.ndarray:
-    """The escape's fixed set of directions (`TransitPlanner.escape`)."""
-    free = np.asarray(tp.failure.free(len(q)))
-    axes = np.zeros((2 * len(free), len(q)))
-    axes[np.arange(len(free)), free] = 1.0
-    axes[len(free) + np.arange(len(free)), free] = -1.0
-    mix = np.zeros((ESCAPE_DIRS, len(q)))
-    mix[:, free] = np.random.default_rng(0).uniform(-1.0, 1.0, (ESCAPE_DIRS, len(free)))
-    return np.concatenate([axes, mix / np.abs(mix).max(axis=1, keepdims=True)])
 
 
 def main() -> None:
@@ -70,7 +59,7 @@ def main() -> None:
     back = tp.scene_slacks(path[max(j - 1, 0) :: -1])
     for k, name in enumerate(names):
         print(f"  the way back along the edge, {name}'s slack every 2nd state:", np.round(back[:30:2, k], 4))
-    dirs = escape_directions(tp, q)
+    dirs = tp.escape_directions(len(q))
     relax = (OBJECT_MARGIN - JAM_MARGIN) * tp.scene.movable
     start = tp.scene_slacks(q[None])[0] + relax
     then = tp.scene_slacks(np.clip(q + ESCAPE_STEP * dirs, robot.lower, robot.upper)) + relax
