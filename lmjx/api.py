@@ -248,7 +248,7 @@ def planner_config(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
-    servo: str = "robot",
+    servo: str = PlannerConfig.servo,
 ) -> PlannerConfig:
     """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
     default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
@@ -296,7 +296,7 @@ def plan_task(
     push_weight: float | None = None,
     rescore_top: int | None = None,
     rescore_draws: int = 8,
-    servo: str = "robot",
+    servo: str = PlannerConfig.servo,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,

@@ -14,7 +14,7 @@ from .actions import TransitPlanner
 from .errors import ConfigError
 from .executor import SimulatedRealWorld, real_gains
 from .mapfile import MapFile
-from .planner import ASMS, Planner, PlannerConfig, TrialResult
+from .planner import ASMS, SERVOS, Planner, PlannerConfig, TrialResult
 from .robot import Robot
 from .scenarios import Layout, sample_layout, scenario
 from .scene import Physics, build_scene
@@ -57,8 +57,8 @@ def planner_physics(robot: Robot, servo: str = "playback") -> Physics:
     what the planner cannot know (a trial's frictions, masses, capsule sizes) is in either."""
     if servo == "playback":
         return Physics()
-    if servo != "robot":
-        raise ConfigError(f"unknown servo model '{servo}'; use playback or robot")
+    if servo not in SERVOS:
+        raise ConfigError(f"unknown servo model '{servo}'; use {' or '.join(SERVOS)}")
     kp, kv = real_gains(robot)
     return Physics(servo_kp=kp, servo_kv=kv, servo_force=tuple(robot.tau_max))
 
