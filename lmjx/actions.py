@@ -68,8 +68,10 @@ ESCAPE_STEP = 0.01  # the way out of a jam (`escape`): largest joint motion of o
 # the edge itself unusable (cut short at a fixed obstacle, or not acting on the target), or
 # no transit to its start
 NO_ACTION_KEYS = ("tested", "start_blocked", "edge_unusable", "no_transit")
-ESCAPE_STEPS = 100  # ... at most this many steps
+ESCAPE_STEPS = 100  # ... at most this many steps (rounds of its search)
 ESCAPE_DIRS = 64  # ... directions tried at each step besides the free joints' own
+ESCAPE_SCALES = (1.0, 0.5, 0.25)  # ... each at these fractions of ESCAPE_STEP
+ESCAPE_BEAM = 32  # ... the search's paths kept each round
 MEMO_KEYS = 4  # per-decision caches (`_memo`): the latest this many keys
 TRAIL_NODES = 1024  # the way back (`trail_back`): at most this many nodes, RETREAT_STEP apart (to the park pose)
 MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
@@ -551,53 +553,99 @@ class TransitPlanner:
     def escape(self, q_now: np.ndarray) -> np.ndarray | None:
         """Joint targets (T, nq) taking the arm out of the scene's margins when it stands
         inside them and neither the way back (`retreat`) nor a transit from where it stands
-        exists (a push left it wedged between objects that moved behind it): steps of
-        ESCAPE_STEP (largest joint motion, free joints only, within the joint limits), each
-        the best of a fixed set of directions (each free joint either way, and ESCAPE_DIRS
-        seeded mixtures of them) by the smallest slack it leaves to any box's margin, among
-        those that go no deeper (LEAVE_TOLERANCE) into a margin than the arm began and enter
-        no other nor one it has left, the movable objects' margins reduced to JAM_MARGIN as on
-        `to_park`'s way out of a jam; until the arm keeps RETREAT_SLACK outside every full
-        margin (where ESCAPE_STEPS steps never do, the arm wedged in a gap, up to the first step
-        outside them all).  The path, all its steps, is then checked like a retreat
-        (`_back_along`, with the same margins: at NEAR_SPEED, every check along it; the table
-        and the arm itself).  None if no step is allowed or none gets the arm out."""
+        exists (a push left it wedged between objects that moved behind it).
+
+        A beam search over small joint steps (free joints only, within the joint limits): the
+        escape's directions (`escape_directions`) at ESCAPE_SCALES of ESCAPE_STEP (largest
+        joint motion).  A step is allowed when, at every check `_back_along` will make along
+        it (the same fractions), the arm goes no deeper (LEAVE_TOLERANCE) into any margin than
+        it began and enters no other nor one it has left on its way, the movable objects'
+        margins reduced to JAM_MARGIN as on `to_park`'s way out of a jam; and it touches
+        neither the table nor the arm itself.  Each round expands the ESCAPE_BEAM best paths
+        (by the smallest slack their last state leaves to any box's full margin) by every
+        allowed step to a state not reached before (a grid of a quarter step), for at most
+        ESCAPE_STEPS rounds, until a path keeps RETREAT_SLACK outside every full margin;
+        failing that (the arm wedged in a gap), the first path found outside them all.  A
+        greedy walk (a beam of one) dead-ends in a wedge where every step from its second
+        state goes deeper into something (trial 1005 of the hard set); the beam keeps other
+        ways open.  The path, all its steps, is then checked like a retreat (`_back_along`,
+        with the same margins: at NEAR_SPEED; the table and the arm itself).  None if no step
+        is allowed or no path gets the arm out."""
         if self.scene is None:
             return None
-        q = np.asarray(q_now, np.float64).copy()
-        dirs = self.escape_directions(len(q))
+        q0 = np.asarray(q_now, np.float64)
+        base = self.escape_directions(len(q0))
+        dirs = np.concatenate([s * ESCAPE_STEP * base for s in ESCAPE_SCALES])
         relax = (OBJECT_MARGIN - JAM_MARGIN) * self.scene.movable  # (nb,) added to the full margins' slacks
-        slack = self.scene_slacks(q[None])[0]
-        start = slack + relax  # against the reduced margins: how deep the arm began in each
-        was_out = start >= 0  # boxes whose (reduced) margin the arm has been outside: never again inside
-        way, least = [], []  # the steps, and the smallest full-margin slack after each
+        slack0 = self.scene_slacks(q0[None])[0]
+        start = slack0 + relax  # against the reduced margins: how deep the arm began in each
+        cell = 0.25 * ESCAPE_STEP * min(ESCAPE_SCALES)
+
+        def key(q: np.ndarray) -> bytes:
+            return np.round(q / cell).astype(np.int64).tobytes()
+
+        # the beam: (state, its full-margin slacks, boxes whose reduced margin the path has
+        # been outside: never again inside, the path's states)
+        beam = [(q0, slack0, start >= 0, [])]
+        seen = {key(q0)}
+        first_out = None  # the first path found outside every full margin
         for _ in range(ESCAPE_STEPS):
-            if slack.min() >= RETREAT_SLACK:
+            if beam[0][1].min() >= RETREAT_SLACK:
                 break
-            qs = np.clip(q + ESCAPE_STEP * dirs, self.robot.lower, self.robot.upper)
-            after = self.scene_slacks(qs)  # (n_dirs, nb), full margins
-            then = after + relax
-            allowed = np.all(np.where(was_out, then >= 0, then >= start - LEAVE_TOLERANCE), axis=1)
-            allowed &= ~self.colliding_batch(qs)
-            if not allowed.any():
-                return None
+            q = np.stack([b[0] for b in beam])
+            qs = np.clip(q[:, None] + dirs[None], self.robot.lower, self.robot.upper).reshape(-1, len(q0))
+            owner = np.repeat(np.arange(len(beam)), len(dirs))
+            new = np.array([key(x) not in seen for x in qs])
+            # the steps' ends first (cheap): a step whose end is refused is refused
+            end = self.scene_slacks(qs[new]) + relax
+            was = np.stack([b[2] for b in beam])[owner[new]]
+            ok = np.all(np.where(was, end >= 0, end >= start - LEAVE_TOLERANCE), axis=1)
+            qs, owner = qs[new][ok], owner[new][ok]
+            if not len(qs):
+                break
+            dq = qs - q[owner]
+            _, fine = self._timing(dq, True)  # `_back_along`'s checks along each step
+            most = int(fine.max())
+            frac = np.minimum(np.arange(1, most + 1)[None] / fine[:, None], 1.0)  # (n, most); 1 repeats the end
+            checks = q[owner][:, None] + frac[..., None] * dq[:, None]  # (n, most, nq)
+            then = np.empty((len(qs), most, len(start)))
+            then[:, -1] = end[ok]
+            if most > 1:
+                then[:, :-1] = (
+                    self.scene_slacks(checks[:, :-1].reshape(-1, len(q0))).reshape(len(qs), most - 1, -1) + relax
+                )
+            was = was[ok]
+            allowed = np.ones(len(qs), bool)
+            for k in range(most):
+                allowed &= np.all(np.where(was, then[:, k] >= 0, then[:, k] >= start - LEAVE_TOLERANCE), axis=1)
+                was = was | (then[:, k] >= 0)
+            after = then[:, -1] - relax
             kept = np.minimum(after, RETREAT_SLACK)
-            score = np.where(allowed, kept.min(axis=1) + 1e-3 * kept.sum(axis=1), -np.inf)
-            best = int(np.argmax(score))
-            q, slack = qs[best], after[best]
-            was_out |= slack + relax >= 0
-            way.append(q.copy())
-            least.append(float(slack.min()))
-        else:  # never RETREAT_SLACK out (wedged in a gap): as far as the first step outside every margin
-            out = np.nonzero(np.asarray(least) >= 0)[0]
-            if not len(out):
-                return None
-            way = way[: out[0] + 1]
+            score = kept.min(axis=1) + 1e-3 * kept.sum(axis=1)
+            order = list(np.nonzero(allowed)[0][np.argsort(-score[allowed], kind="stable")])
+            nxt = []
+            while order and len(nxt) < ESCAPE_BEAM:  # the best first; the table and the arm checked as needed
+                part = [i for i in order[: 2 * ESCAPE_BEAM] if key(qs[i]) not in seen]
+                order = order[2 * ESCAPE_BEAM :]
+                if not part:
+                    continue
+                hits = self.colliding_batch(checks[part].reshape(-1, len(q0))).reshape(len(part), most).any(axis=1)
+                for i in np.asarray(part)[~hits]:
+                    if len(nxt) == ESCAPE_BEAM or key(qs[i]) in seen:
+                        continue
+                    seen.add(key(qs[i]))
+                    nxt.append((qs[i], after[i], was[i], [*beam[owner[i]][3], qs[i]]))
+                    if first_out is None and after[i].min() >= 0:
+                        first_out = nxt[-1][3]
+            if not nxt:
+                break
+            beam = nxt
+        way = beam[0][3] if beam[0][1].min() >= RETREAT_SLACK else first_out
         if not way:
             return None
         self._relax = OBJECT_MARGIN - JAM_MARGIN
         try:
-            return self._back_along(np.asarray(q_now, np.float64), np.asarray(way), every=True)
+            return self._back_along(q0, np.asarray(way), every=True)
         finally:
             self._relax = 0.0
 

@@ -13,7 +13,16 @@ import numpy as np
 import pytest
 from conftest import benchmark_module, cli
 
-from lmjx.actions import CONTROL_DT, MIN_EDGE_STATES, TransitPlanner, controls, park_pose
+from lmjx.actions import (
+    CONTROL_DT,
+    JAM_MARGIN,
+    LEAVE_TOLERANCE,
+    MIN_EDGE_STATES,
+    OBJECT_MARGIN,
+    TransitPlanner,
+    controls,
+    park_pose,
+)
 from lmjx.executor import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
 from lmjx.failure import parse_failure
 from lmjx.mapfile import load_map
@@ -983,7 +992,6 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     transit from where the arm stands are offered after it ("escape+..." routes, the escape
     first); the others exactly as when the arm is not jammed.  Transits from the escape's end
     begin with it, end at their edge's start and keep OBJECT_MARGIN after it."""
-    from lmjx.actions import JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -1062,6 +1070,64 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     assert [a.edge for a in jam] == sorted(a.edge for a in jam)
     for a in jam:
         begins_along(a.q, np.concatenate([q0[None], path]))
+
+
+# the hard set's trial 1005 (case 1, clutter, Greedy), after its first push: where the arm
+# stood and the objects as the planner observed them (benchmarks/replay_1005_2026-11-27)
+WEDGE_Q = [-2.094585191469385, -0.38554973939259163, 2.877191123935564, -2.5755576106222784,
+           0.00039133548716256667, 2.9814477112460755, 0.7860328914256102]  # fmt: skip
+WEDGE_OBJECTS = [
+    [0.4127834366540514, 0.2777647783774223, 0.025, 0.873692545303924, 0.0, 0.0, 0.48647850546591526],
+    [0.5011393493266814, 0.42570141243210796, 0.03, 0.9947403004451251, 0.0, 0.0, -0.10242916904057353],
+    [0.3210939031671714, 0.2852012053536455, 0.03, 0.993220584019228, 0.0, 0.0, 0.11624487722262705],
+    [0.44897375617179014, 0.44446173094420144, 0.03, 0.7751124655293, 0.0, 0.0, 0.6318232868303365],
+]
+
+
+def test_a_wedged_arm_escapes_by_search(robot, monkeypatch):
+    """Trial 1005's wedge: a push left the arm between the target it pushed (2.4 mm clear of
+    it) and obstacle2 (2.2 mm into its observed box), the park pose blocked.  A greedy walk
+    (`escape` with a beam of one) dead-ends there: every step from its second state goes
+    deeper into something.  The beam search gets out: by C MuJoCo's mj_geomDistance the arm
+    never comes nearer any object than it began or than JAM_MARGIN (whichever is lower;
+    LEAVE_TOLERANCE), ends at least OBJECT_MARGIN clear of every object, touches neither the
+    table nor itself, and keeps its locked joints and joint limits."""
+    import lmjx.actions as actions
+
+    q0, objects = np.array(WEDGE_Q), np.array(WEDGE_OBJECTS)
+    failure = parse_failure("case1", robot)
+    sc = scenario(1, tasks="hard")
+    scene = build_scene(robot, sc)
+    model, d = scene.model, mujoco.MjData(scene.model)
+    set_state(scene, d, q0, objects)
+    clearance = arm_clearance_fn(robot, scene, d)
+    movable = [model.geom(f"{b.name}_geom").id for b in sc.movable]
+    began = np.array([clearance(q0, [g]) for g in movable])
+    assert began[0] < OBJECT_MARGIN and began[2] < 0.001  # wedged: the target and obstacle2 within reach
+    tp = TransitPlanner(robot, failure, batched=True, search=False)
+    tp.set_scene(sc, objects)
+    assert tp.to_park(q0) is None
+    path = tp.escape(q0)
+    assert path is not None
+    for k, g in enumerate(movable):
+        gaps = np.array([clearance(q, [g]) for q in path])
+        assert gaps.min() >= min(began[k], JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4, sc.movable[k].name
+        assert gaps[-1] >= OBJECT_MARGIN - 1e-4, sc.movable[k].name
+    locked = [j - 1 for j in failure.locked_joints]
+    np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
+    assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
+    objs = set(movable)
+    for q in path:
+        d.qpos[scene.robot_qpos] = q
+        mujoco.mj_forward(model, d)
+        assert not any(  # the table and the arm itself (the objects: their clearances above)
+            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 and not {c.geom1, c.geom2} & objs
+            for c in d.contact[: d.ncon]
+        )
+    monkeypatch.setattr(actions, "ESCAPE_BEAM", 1)  # the greedy walk
+    tp.forget()
+    tp.set_scene(sc, objects)
+    assert tp.escape(q0) is None
 
 
 def _observed(robot, sc, seed: int) -> np.ndarray:
