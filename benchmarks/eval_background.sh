@@ -13,6 +13,10 @@
 # calib and recount: run the list P at a time in its order, each next one as soon as one
 # ends, instead of all at once)
 #
+# Without QUEUE, `launch` warns when more runs go at once than the host has cores: their
+# decisions slow down, and trials can end at the 600 s planning limit from the load alone
+# (the seventeenth session's 147 runs on 64 cores: docs/EVALUATION.md).
+#
 # Each run is `lmjx evaluate --sim SIM --tasks TASKS --scenarios SCENARIOS --failures
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
 # cell split in N runs, one per K, each with the cell's finished trials carried; NICE: the
@@ -79,6 +83,16 @@ dispatch() {  # this launch's queued runs ($REPO/queue), QUEUE at a time, in a p
   echo "queued $(tr -cd '\0' < "$REPO/queue" | wc -c) runs, $QUEUE at a time"
 }
 
+crowded() {  # a warning when more runs go at once than the host has cores (their planning times are the load's)
+  [ -n "${QUEUE:-}" ] && return 0
+  local left=0 cores
+  cores=$(nproc)
+  for name in $(sort -u "$WORK/runs"); do [ -f "$WORK/$name.rc" ] || left=$((left + 1)); done
+  [ "$left" -gt "$cores" ] || return 0
+  echo "eval_background: warning: $left runs now go at once on $cores cores; their decisions slow down and trials" \
+    "can end at the planning limit because of the load alone (QUEUE=P runs this launch P at a time)" >&2
+}
+
 if [ -n "${QUEUE:-}" ] && ! [[ "$QUEUE" =~ ^[1-9][0-9]*$ ]]; then
   echo "eval_background: QUEUE must be a whole number of runs at a time (1 or more), not '$QUEUE'" >&2; exit 2
 fi
@@ -120,6 +134,7 @@ case ${1:-} in
       start "$name" "$dir" "$pin" "$env" "-m lmjx.cli evaluate $args"
     done
     dispatch
+    crowded
     date -u +"launched %H:%M:%S" ;;
   recount)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
