@@ -81,6 +81,9 @@ def main() -> None:
     ap.add_argument("--first", type=int, default=0, help="the first start's trial index")
     ap.add_argument("--per-start", type=int, default=12, help="first actions per start")
     ap.add_argument("--trials", type=int, default=15, help="the evaluation's trials per cell, for the chance")
+    ap.add_argument("--base", type=int, default=CAL_BASE,
+                    help="the seeds' base: 7 the calibration's (default); 0 the evaluation's, to explain a result "
+                         "after it (never to choose tasks from)")  # fmt: skip
     ap.add_argument("--out", required=True, help="JSON file: every start, its actions' ends, the rates")
     args = ap.parse_args()
     robot = load_robot("panda")
@@ -88,12 +91,13 @@ def main() -> None:
         m = load_map(args.map, robot=robot)
     except LmjxError as e:
         raise SystemExit(f"one_action_rate: {e}") from None
-    out, t0 = {"map": str(args.map), "per_start": args.per_start, "scenarios": {}}, time.perf_counter()
+    t0 = time.perf_counter()
+    out = {"map": str(args.map), "per_start": args.per_start, "base": args.base, "scenarios": {}}
     for s in (int(x) for x in args.scenarios.split(",")):
         task = scenario(s, robot.profile.task_scale, "paper")
         starts = []
         for t in range(args.first, args.first + args.starts):
-            start, ends = first_actions(robot, m, s, trial_seed(CAL_BASE, s, t), args.per_start)
+            start, ends = first_actions(robot, m, s, trial_seed(args.base, s, t), args.per_start)
             start["ends"] = ends
             start["rate"] = float(np.mean([one_action(task, e) for e in ends])) if ends else 0.0
             starts.append(start)
