@@ -25,6 +25,15 @@ In parts, on many cores (each part a process; then merged and scored):
     python benchmarks/calibrate_tasks.py --maps maps --failures case1 --scenarios 2 --first 4 --trials 2 --out part.json
     python benchmarks/calibrate_tasks.py --from-runs part*.json --out calibration.json [--apply]
 
+With `--one-action RATES.json` (`one_action_rate.py`'s --out on the same calibration starts)
+each candidate also gets p1, its one-action rate from many first actions per start, and the
+seventh calibration's rule applies instead (benchmarks/evaluation_plan_2026-11-28.md): the
+chance of at least one one-action success in case 1's 3 x 15 trials, 1 - prod(1 - p1)^15, at
+least 0.95; then the smallest total gap to 2/3, the shorter distances, and the present goal size
+and budget (0.10, 30) if among the best:
+
+    python benchmarks/calibrate_tasks.py --from-runs calibration.json --one-action rates.json --out seventh.json
+
 Selection rule (fixed before looking at the results): a goal size and a budget common to
 the three scenarios, a distance per scenario; the start never inside the goal (distance at
 least the goal's half size + 3 cm, the layouts' jitter; in the tunnel the goal region wholly
@@ -172,6 +181,65 @@ def choose(rows: list[dict], trials: int) -> dict:
                              for s, r in pick.items()}}  # fmt: skip
 
 
+def one_action_ends(path: Path) -> dict[int, list[list[dict]]]:
+    """Scenario -> per start, the ends of its first actions (`one_action_rate.py`'s --out)."""
+    try:
+        data = json.loads(path.read_text())
+        return {int(k): [st["ends"] for st in v["starts"]] for k, v in data["scenarios"].items()}
+    except FileNotFoundError:
+        raise SystemExit(f"calibrate_tasks: {path} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+        raise SystemExit(f"calibrate_tasks: {path} is not an --out file of one_action_rate.py") from None
+
+
+def add_p1(rows: list[dict], ends: dict[int, list[list[dict]]]) -> None:
+    """Each case-1 row's p1: the mean over starts of the share of first actions that end the
+    trial in success (`one_action_rate.one_action`) on the row's task."""
+    from one_action_rate import one_action
+
+    memo: dict[tuple, float] = {}
+    for r in rows:
+        if r["failure"] != "case1" or r["scenario"] not in ends:
+            continue
+        key = (r["scenario"], r["angle"], r["distance"], r["half"])
+        if key not in memo:
+            hard = scenario(r["scenario"], 1.0, "hard")
+            task = paper_variant(hard, PaperTask(r["distance"], r["half"], float(r["angle"])), r["budget"])
+            memo[key] = float(np.mean([np.mean([one_action(task, e) for e in st]) if st else 0.0
+                                       for st in ends[r["scenario"]]]))  # fmt: skip
+        r["p1"] = memo[key]
+
+
+def choose_p1(rows: list[dict], trials: int, need: float = 0.95, per_cell: int = 15) -> dict:
+    """The seventh calibration's rule (module docstring) on case 1's rows, which carry p1."""
+    aim = 2 / 3 * trials
+    best = None
+    for h, b in itertools.product(HALVES, BUDGETS):
+        cands = []
+        for sc in SCENARIOS:
+            c = [r for r in rows if (r["failure"], r["scenario"], r["half"], r["budget"]) == ("case1", sc, h, b)]
+            if not c or any("p1" not in r for r in c):
+                break
+            cands.append(c)
+        else:
+            for combo in itertools.product(*cands):
+                none = float(np.prod([(1.0 - r["p1"]) ** per_cell for r in combo]))
+                if 1.0 - none < need:
+                    continue
+                gap = round(sum(abs(r["successes"] - aim) for r in combo), 6)
+                k = (gap, round(sum(r["distance"] for r in combo), 6), (h, b) != (0.10, 30), h, b)
+                if best is None or k < best[0]:
+                    best = (k, h, b, combo, 1.0 - none)
+    if best is None:
+        return {"none": f"no candidate gives a one-action success in {per_cell} trials a scenario with chance {need}"}
+    _, h, b, combo, chance = best
+    return {"half": h, "budget": b, "distances": {r["scenario"]: r["distance"] for r in combo},
+            "angles": {r["scenario"]: r["angle"] for r in combo}, "one_action_chance": round(chance, 4),
+            "p1": {r["scenario"]: round(r["p1"], 4) for r in combo},
+            "random_case1": {r["scenario"]: f"{r['successes']}/{r['trials']} ({r['one_action']} in one action)"
+                             for r in combo}}  # fmt: skip
+
+
 def apply(choice: dict, path: Path) -> None:
     """Write the choice into lmjx/scenarios.py (PAPER_TASKS, PAPER_BUDGET)."""
     import re
@@ -214,6 +282,9 @@ def main() -> None:
     ap.add_argument("--from-runs", nargs="+", metavar="FILE",
                     help="score the trials of earlier --out files again instead of running them (several: "
                          "the parts of one calibration, merged by trial seed)")  # fmt: skip
+    ap.add_argument("--one-action", metavar="RATES",
+                    help="one_action_rate.py's --out on the same calibration starts: the seventh calibration's "
+                         "rule (a one-action success in case 1's 45 trials with chance 0.95)")  # fmt: skip
     args = ap.parse_args()
     robot = load_robot("panda")
     runs, t0 = {}, time.perf_counter()
@@ -248,7 +319,11 @@ def main() -> None:
             print(f"{f} scenario {s}: {sum(acts)} actions in {len(acts)} trials "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
     rows = grid(runs)
-    choice = choose(rows, args.trials) if "case1" in args.failures else None
+    if args.one_action:
+        add_p1(rows, one_action_ends(Path(args.one_action)))
+        choice = choose_p1(rows, args.trials)
+    else:
+        choice = choose(rows, args.trials) if "case1" in args.failures else None
     print(json.dumps(choice, indent=1))
     out = {"trials": args.trials, "first": 0 if args.from_runs else args.first, "seed_base": CAL_BASE,
            "choice": choice, "grid": rows,

@@ -42,8 +42,9 @@ CAL_BASE = 7  # the calibration's seed base (calibrate_tasks.CAL_BASE)
 GOAL_MARGIN = PlannerConfig().goal_margin
 
 
-def first_actions(robot, m, number: int, seed: int, k: int) -> tuple[dict, list]:
-    """The start of calibration trial `seed` and the ends of up to k first Random actions."""
+def first_actions(robot, m, number: int, seed: int, k: int, order: np.ndarray | None = None) -> tuple[dict, list]:
+    """The start of trial `seed` and the ends of up to k first Random actions: the first k
+    feasible edges over the target in a seeded random order (`order`: these edges instead)."""
     sc = scenario(number, robot.profile.task_scale, "paper")
     cfg = PlannerConfig(asm="random")
     layout = sample_layout(sc, seed)
@@ -53,7 +54,8 @@ def first_actions(robot, m, number: int, seed: int, k: int) -> tuple[dict, list]
     obs = world.reset(layout, park)
     tp.set_scene(sc, obs.objects)
     edges = edges_over_target(m.edges, m.reach, obs.objects[0, :2], float(sc.target.half[0]), cfg.target_margin)
-    order = np.random.default_rng([seed, 11]).permutation(edges)
+    if order is None:
+        order = np.random.default_rng([seed, 11]).permutation(edges)
     acts = tp.actions(m.edges, order, obs.robot_q, k)
     ends = []
     for a in acts:

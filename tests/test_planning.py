@@ -1430,6 +1430,49 @@ def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
     assert got[0, pick["seed"]] == 1 and got[1, pick["seed"]] >= 2 and got[2, pick["seed"]] == 1, got
 
 
+def test_one_action_rate_executes_what_a_trial_executes(robot, plan_map):
+    """benchmarks/one_action_rate.py executes each first action from the start in a fresh
+    "real" world of the trial's seed.  That stands for Random's first action only if a trial
+    that picks the same edge (the calibration's Random trial, `calibrate_tasks.Recording`)
+    leaves the target where the script does: the same observed and true pose, to the bit.  The
+    script's success test then agrees with the trial run on a task (a stop in the goal after
+    one action) for goals placed on that end and with it 5 mm inside a goal's edge."""
+    from dataclasses import replace
+
+    from lmjx.evaluate import trial_seed
+    from lmjx.planner import Planner
+    from lmjx.scenarios import PaperTask, paper_variant
+
+    ct, oa = benchmark_module("calibrate_tasks"), benchmark_module("one_action_rate")
+    m = load_map(plan_map, robot=robot)
+    sc = replace(scenario(1, tasks="paper"), goal_center=(3.0, -3.0), budget=1)
+    seed = trial_seed(oa.CAL_BASE, 1, 0)
+    world = ct.Recording(robot, seed)
+    planner = Planner(robot, m.failure, m.reach, m.edges, sc, None, PlannerConfig(asm="random", max_actions=1).paper(),
+                      TransitPlanner(robot, m.failure))  # fmt: skip
+    res = planner.run(world, sample_layout(sc, seed), seed * 7)
+    assert res.actions == 1, res.reason
+    edge = res.steps[0].edge
+    _, ends = oa.first_actions(robot, m, 1, seed, 1, order=np.array([edge]))
+    assert len(ends) == 1 and ends[0]["edge"] == edge
+    assert ends[0]["observed"] == world.track[1][0] and ends[0]["true"] == world.track[1][1]
+    hard = scenario(1, tasks="hard")
+    start = np.array([hard.target.x, hard.target.y])
+    end = np.array(ends[0]["observed"])
+    assert np.hypot(*(end - start)) > 0.01, "the first push moved too little"
+    seen = set()
+    for centre in (end, end - np.array([0.025, 0.0])):  # on the end: a stop; 5 mm inside the edge: no stop
+        d = centre - start
+        task = paper_variant(hard, PaperTask(float(np.hypot(*d)), 0.03, float(np.degrees(np.arctan2(d[1], d[0])))), 2)
+        cfg = PlannerConfig(asm="random", max_actions=2).paper()
+        trial = Planner(robot, m.failure, m.reach, m.edges, task, None, cfg, TransitPlanner(robot, m.failure))
+        trial = trial.run(SimulatedRealWorld(robot, seed), sample_layout(task, seed), seed * 7)
+        assert trial.steps[0].edge == edge  # (Random's first pick does not depend on the goal)
+        assert oa.one_action(task, ends[0]) == (trial.success and trial.actions == 1)
+        seen.add(oa.one_action(task, ends[0]))
+    assert seen == {True, False}
+
+
 def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     """`--servo robot`: the planner's simulator tracks joint targets with the robot's own servo
     gains and torque limits.  Against the "real" world's physics with its per-trial draws set
