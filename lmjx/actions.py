@@ -32,8 +32,8 @@ of the next action then begin with a `retreat` back along that edge until the ar
 of every margin); where there is none, a transit may leave the margins directly, never going
 deeper on the way out, never entering another object's.  Where even that gives an edge no
 transit (the arm wedged between objects the push moved behind it), the edge's transit begins
-with an `escape`: small joint steps that each go no deeper into any margin, until the arm is
-clear.  Nothing here chooses actions.
+with an `escape`: a path of small joint steps, found by a beam search, none of which goes
+deeper into any margin, until the arm is clear.  Nothing here chooses actions.
 """
 
 from __future__ import annotations
