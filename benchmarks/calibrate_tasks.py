@@ -183,12 +183,15 @@ def choose(rows: list[dict], trials: int) -> dict:
 
 def one_action_ends(path: Path) -> dict[int, list[list[dict]]]:
     """Scenario -> per start, the ends of its first actions (`one_action_rate.py`'s --out)."""
+    import gzip
+
     try:
-        data = json.loads(path.read_text())
+        text = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
+        data = json.loads(text)
         return {int(k): [st["ends"] for st in v["starts"]] for k, v in data["scenarios"].items()}
     except FileNotFoundError:
         raise SystemExit(f"calibrate_tasks: {path} does not exist") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, OSError):
         raise SystemExit(f"calibrate_tasks: {path} is not an --out file of one_action_rate.py") from None
 
 

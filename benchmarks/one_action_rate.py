@@ -23,6 +23,7 @@ the calibration's (the evaluation never uses them).
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import time
 from pathlib import Path
@@ -86,7 +87,8 @@ def main() -> None:
     ap.add_argument("--base", type=int, default=CAL_BASE,
                     help="the seeds' base: 7 the calibration's (default); 0 the evaluation's, to explain a result "
                          "after it (never to choose tasks from)")  # fmt: skip
-    ap.add_argument("--out", required=True, help="JSON file: every start, its actions' ends, the rates")
+    ap.add_argument("--out", required=True,
+                    help="JSON file (.json.gz: compressed): every start, its actions' ends, the rates")  # fmt: skip
     args = ap.parse_args()
     robot = load_robot("panda")
     try:
@@ -114,8 +116,9 @@ def main() -> None:
         print(f"scenario {s}: one-action rate {rates.mean():.3f} over {len(rates)} starts; "
               f"at least one in {args.trials} trials: {chance:.2f}", flush=True)  # fmt: skip
     out["seconds"] = round(time.perf_counter() - t0, 1)
-    tmp = Path(args.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out) + "\n")
+    tmp = Path(args.out).with_name(Path(args.out).name + ".tmp")
+    data = (json.dumps(out) + "\n").encode()
+    tmp.write_bytes(gzip.compress(data) if args.out.endswith(".gz") else data)  # (.gz: compressed)
     tmp.replace(args.out)
 
 
