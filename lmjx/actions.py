@@ -584,6 +584,9 @@ class TransitPlanner:
         def key(q: np.ndarray) -> bytes:
             return np.round(q / cell).astype(np.int64).tobytes()
 
+        def keeps(was: np.ndarray, slacks: np.ndarray) -> np.ndarray:  # the rule, (n,) of (n, nb) reduced slacks
+            return np.all(np.where(was, slacks >= 0, slacks >= start - LEAVE_TOLERANCE), axis=1)
+
         # the beam: (state, its full-margin slacks, boxes whose reduced margin the path has
         # been outside: never again inside, the path's states)
         beam = [(q0, slack0, start >= 0, [])]
@@ -599,7 +602,7 @@ class TransitPlanner:
             # the steps' ends first (cheap): a step whose end is refused is refused
             end = self.scene_slacks(qs[new]) + relax
             was = np.stack([b[2] for b in beam])[owner[new]]
-            ok = np.all(np.where(was, end >= 0, end >= start - LEAVE_TOLERANCE), axis=1)
+            ok = keeps(was, end)
             qs, owner = qs[new][ok], owner[new][ok]
             if not len(qs):
                 break
@@ -617,7 +620,7 @@ class TransitPlanner:
             was = was[ok]
             allowed = np.ones(len(qs), bool)
             for k in range(most):
-                allowed &= np.all(np.where(was, then[:, k] >= 0, then[:, k] >= start - LEAVE_TOLERANCE), axis=1)
+                allowed &= keeps(was, then[:, k])
                 was = was | (then[:, k] >= 0)
             after = then[:, -1] - relax
             kept = np.minimum(after, RETREAT_SLACK)
