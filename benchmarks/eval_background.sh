@@ -83,11 +83,16 @@ dispatch() {  # this launch's queued runs ($REPO/queue), QUEUE at a time, in a p
   echo "queued $(tr -cd '\0' < "$REPO/queue" | wc -c) runs, $QUEUE at a time"
 }
 
+running() {  # how many runs started so far have not ended (no NAME.rc yet)
+  local left=0
+  for name in $(sort -u "$WORK/runs"); do [ -f "$WORK/$name.rc" ] || left=$((left + 1)); done
+  echo $left
+}
+
 crowded() {  # a warning when more runs go at once than the host has cores (their planning times are the load's)
   [ -n "${QUEUE:-}" ] && return 0
-  local left=0 cores
-  cores=$(nproc)
-  for name in $(sort -u "$WORK/runs"); do [ -f "$WORK/$name.rc" ] || left=$((left + 1)); done
+  local left cores
+  left=$(running) cores=$(nproc)
   [ "$left" -gt "$cores" ] || return 0
   echo "eval_background: warning: $left runs now go at once on $cores cores; their decisions slow down and trials" \
     "can end at the planning limit because of the load alone (QUEUE=P runs this launch P at a time)" >&2
@@ -153,9 +158,7 @@ case ${1:-} in
   wait)
     end=$(( $(date +%s) + ${WAIT_S:-560} ))
     while [ "$(date +%s)" -lt $end ]; do
-      left=0
-      for name in $(sort -u "$WORK/runs"); do [ -f "$WORK/$name.rc" ] || left=$((left + 1)); done
-      [ $left -eq 0 ] && break
+      [ "$(running)" -eq 0 ] && break
       sleep 10
     done
     date -u +"%H:%M:%S"
