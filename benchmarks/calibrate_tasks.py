@@ -183,11 +183,10 @@ def choose(rows: list[dict], trials: int) -> dict:
 
 def one_action_ends(path: Path) -> dict[int, list[list[dict]]]:
     """Scenario -> per start, the ends of its first actions (`one_action_rate.py`'s --out)."""
-    import gzip
+    from one_action_rate import read
 
     try:
-        text = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
-        data = json.loads(text)
+        data = read(path)
         return {int(k): [st["ends"] for st in v["starts"]] for k, v in data["scenarios"].items()}
     except FileNotFoundError:
         raise SystemExit(f"calibrate_tasks: {path} does not exist") from None
@@ -196,9 +195,9 @@ def one_action_ends(path: Path) -> dict[int, list[list[dict]]]:
 
 
 def add_p1(rows: list[dict], ends: dict[int, list[list[dict]]]) -> None:
-    """Each case-1 row's p1: the mean over starts of the share of first actions that end the
-    trial in success (`one_action_rate.one_action`) on the row's task."""
-    from one_action_rate import one_action
+    """Each case-1 row's p1: the mean over starts of their one-action rates on the row's task
+    (`one_action_rate.start_rate`)."""
+    from one_action_rate import start_rate
 
     memo: dict[tuple, float] = {}
     for r in rows:
@@ -208,8 +207,7 @@ def add_p1(rows: list[dict], ends: dict[int, list[list[dict]]]) -> None:
         if key not in memo:
             hard = scenario(r["scenario"], 1.0, "hard")
             task = paper_variant(hard, PaperTask(r["distance"], r["half"], float(r["angle"])), r["budget"])
-            memo[key] = float(np.mean([np.mean([one_action(task, e) for e in st]) if st else 0.0
-                                       for st in ends[r["scenario"]]]))  # fmt: skip
+            memo[key] = float(np.mean([start_rate(task, st) for st in ends[r["scenario"]]]))
         r["p1"] = memo[key]
 
 

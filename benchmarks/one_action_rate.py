@@ -76,6 +76,25 @@ def one_action(task, end: dict) -> bool:
             and end["z"] > -0.02)  # fmt: skip
 
 
+def start_rate(task, ends: list[dict]) -> float:
+    """A start's one-action rate on `task`: the share of its first actions' `ends` that succeed."""
+    return float(np.mean([one_action(task, e) for e in ends])) if ends else 0.0
+
+
+def write(path: Path, out: dict) -> None:
+    """The --out file, atomically (a temp file, then renamed); compressed where it ends in .gz."""
+    tmp = path.with_name(path.name + ".tmp")
+    data = (json.dumps(out) + "\n").encode()
+    tmp.write_bytes(gzip.compress(data) if path.suffix == ".gz" else data)
+    tmp.replace(path)
+
+
+def read(path: Path) -> dict:
+    """An --out file (.gz: compressed) as `main` wrote it."""
+    data = path.read_bytes()
+    return json.loads(gzip.decompress(data) if path.suffix == ".gz" else data)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--map", required=True, help="the failure's map (case 1's for the acceptance)")
@@ -103,9 +122,9 @@ def main() -> None:
         for t in range(args.first, args.first + args.starts):
             start, ends = first_actions(robot, m, s, trial_seed(args.base, s, t), args.per_start)
             start["ends"] = ends
-            start["rate"] = float(np.mean([one_action(task, e) for e in ends])) if ends else 0.0
+            start["rate"] = start_rate(task, ends)
             starts.append(start)
-            print(f"scenario {s} start {t}: {sum(one_action(task, e) for e in ends)} of {len(ends)} in one action "
+            print(f"scenario {s} start {t}: {round(start['rate'] * len(ends))} of {len(ends)} in one action "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
         rates = np.array([st["rate"] for st in starts])
         chance = 1.0 - (1.0 - float(rates.mean())) ** args.trials
@@ -116,10 +135,7 @@ def main() -> None:
         print(f"scenario {s}: one-action rate {rates.mean():.3f} over {len(rates)} starts; "
               f"at least one in {args.trials} trials: {chance:.2f}", flush=True)  # fmt: skip
     out["seconds"] = round(time.perf_counter() - t0, 1)
-    tmp = Path(args.out).with_name(Path(args.out).name + ".tmp")
-    data = (json.dumps(out) + "\n").encode()
-    tmp.write_bytes(gzip.compress(data) if args.out.endswith(".gz") else data)  # (.gz: compressed)
-    tmp.replace(args.out)
+    write(Path(args.out), out)
 
 
 if __name__ == "__main__":
