@@ -981,6 +981,31 @@ def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     check(path)
 
 
+def assert_escape_keeps_clear(robot, failure, scene, d, clearance, objects, q0, path, object_contacts=True) -> None:
+    """The checks of an `escape` path by C MuJoCo: its clearance to each of `objects` (geom
+    ids; `clearance`, `arm_clearance_fn`'s) never falls more than LEAVE_TOLERANCE below where
+    it began or JAM_MARGIN (whichever is lower) and ends at least OBJECT_MARGIN; the locked
+    joints and the joint limits are kept; no contact between different bodies at any of its
+    states (`object_contacts` False: none but with the objects)."""
+    model = scene.model
+    for g in objects:  # each object against where the arm began beside it
+        gaps = np.array([clearance(q, [g]) for q in path])
+        began = clearance(q0, [g])
+        assert gaps.min() >= min(began, JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4, model.geom(g).name
+        assert gaps[-1] >= OBJECT_MARGIN - 1e-4, model.geom(g).name
+    locked = [j - 1 for j in failure.locked_joints]
+    np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
+    assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
+    skip = set() if object_contacts else set(objects)
+    for q in path:
+        d.qpos[scene.robot_qpos] = q
+        mujoco.mj_forward(model, d)
+        assert not any(
+            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 and not {c.geom1, c.geom2} & skip
+            for c in d.contact[: d.ncon]
+        )
+
+
 def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch):
     """A push can leave the arm inside the scene's margins with no way back along its edge
     (`retreat` finds none: here the edge is the arm's own pose alone, the hand between two
@@ -1017,20 +1042,7 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
     assert tp.retreat(q0, q0[None]) is None
     path = tp.escape(q0)
     assert path is not None
-    for k in (0, 1):  # each object against where the arm began beside it
-        gaps = np.array([clearance(q, movable[k : k + 1]) for q in path])
-        began = clearance(q0, movable[k : k + 1])
-        assert gaps.min() >= min(began, JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4
-        assert gaps[-1] >= OBJECT_MARGIN - 1e-4
-    locked = [j - 1 for j in m.failure.locked_joints]
-    np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
-    assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
-    for q in path:
-        d.qpos[scene.robot_qpos] = q
-        mujoco.mj_forward(model, d)
-        assert not any(
-            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 for c in d.contact[: d.ncon]
-        )
+    assert_escape_keeps_clear(robot, m.failure, scene, d, clearance, movable[:2], q0, path)  # the two beside it
     edges = np.arange(10)  # edges anywhere (not only over the target: `acting` off)
     tp.set_scene(sc, objects, acting=False)
     acts = tp.actions(m.edges, edges, q0, len(edges), q0[None])  # jammed: the escape for edges with no way
@@ -1109,21 +1121,8 @@ def test_a_wedged_arm_escapes_by_search(robot, monkeypatch):
     assert tp.to_park(q0) is None
     path = tp.escape(q0)
     assert path is not None
-    for k, g in enumerate(movable):
-        gaps = np.array([clearance(q, [g]) for q in path])
-        assert gaps.min() >= min(began[k], JAM_MARGIN) - LEAVE_TOLERANCE - 1e-4, sc.movable[k].name
-        assert gaps[-1] >= OBJECT_MARGIN - 1e-4, sc.movable[k].name
-    locked = [j - 1 for j in failure.locked_joints]
-    np.testing.assert_array_equal(path[:, locked], np.repeat(q0[None, locked], len(path), axis=0))
-    assert np.all(path >= robot.lower) and np.all(path <= robot.upper)
-    objs = set(movable)
-    for q in path:
-        d.qpos[scene.robot_qpos] = q
-        mujoco.mj_forward(model, d)
-        assert not any(  # the table and the arm itself (the objects: their clearances above)
-            model.geom_bodyid[c.geom1] != model.geom_bodyid[c.geom2] and c.dist < 0 and not {c.geom1, c.geom2} & objs
-            for c in d.contact[: d.ncon]
-        )
+    # (it began 2.2 mm into obstacle2's box: contacts with the objects are their clearances' to judge)
+    assert_escape_keeps_clear(robot, failure, scene, d, clearance, movable, q0, path, object_contacts=False)
     monkeypatch.setattr(actions, "ESCAPE_BEAM", 1)  # the greedy walk
     tp.forget()
     tp.set_scene(sc, objects)
