@@ -92,7 +92,9 @@ running() {  # how many runs started so far have not ended (no NAME.rc yet)
 crowded() {  # a warning when more runs go at once than the host has cores (their planning times are the load's)
   [ -n "${QUEUE:-}" ] && return 0
   local left cores
-  left=$(running) cores=$(nproc)
+  # (nproc alone answers OMP_NUM_THREADS, which the device scripts set to 1: the eighteenth session's
+  # warnings said "on 1 cores" on a host of 32)
+  left=$(running) cores=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)
   [ "$left" -gt "$cores" ] || return 0
   echo "eval_background: warning: $left runs now go at once on $cores cores; their decisions slow down and trials" \
     "can end at the planning limit because of the load alone (QUEUE=P runs this launch P at a time)" >&2
