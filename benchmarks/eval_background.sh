@@ -21,7 +21,9 @@
 # FAILURES --asms ASMS [--part K/N]` (commas inside a field; '-' leaves it at its default; a
 # cell split in N runs, one per K, each with the cell's finished trials carried; NICE: the
 # run's scheduling priority, e.g. 19 for runs that should only take idle cores) pinned to the
-# cores CPUS (taskset list such as 0-5; '-': any), writing /tmp/lmjx_gpu/NAME/results.json
+# cores CPUS (taskset list such as 0-5; '-': any; '@' with QUEUE=P: one core of its own, the
+# queue slot's, core FIRST_CORE + slot for slots 0..P-1, so P runs of one core each never
+# share one), writing /tmp/lmjx_gpu/NAME/results.json
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it (benchmarks/evprev.py writes those from merged results; benchmarks/evparts.py
 # lists unfinished cells as parts holding only their missing trials).  `lmjx evaluate`
@@ -66,6 +68,7 @@ next_gpu() {  # the GPUs in turn, across launches: "CUDA_VISIBLE_DEVICES=k" ("" 
 start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
   local name=$1 dir=$2 pin=$3 env=$4; shift 4
   rm -f "$dir.rc"  # a run started again (to resume) is running until it writes it anew
+  [ "$pin" = "taskset -c @" ] && pin="taskset -c \$(( ${FIRST_CORE:-0} + LMJX_SLOT ))"  # (`dispatch` sets LMJX_SLOT)
   local job="cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
     start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
     echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc"
@@ -79,7 +82,7 @@ start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of i
 
 dispatch() {  # this launch's queued runs ($REPO/queue), QUEUE at a time, in a process session of its own
   [ -n "${QUEUE:-}" ] && [ -s "$REPO/queue" ] || return 0
-  setsid nohup bash -c "xargs -0 -P $QUEUE -n 1 bash -c < $REPO/queue" > "$REPO/queue.log" 2>&1 < /dev/null &
+  setsid nohup bash -c "xargs -0 -P $QUEUE --process-slot-var=LMJX_SLOT -n 1 bash -c < $REPO/queue" > "$REPO/queue.log" 2>&1 < /dev/null &
   echo "queued $(tr -cd '\0' < "$REPO/queue" | wc -c) runs, $QUEUE at a time"
 }
 
@@ -102,6 +105,9 @@ crowded() {  # a warning when more runs go at once than the host has cores (thei
 
 if [ -n "${QUEUE:-}" ] && ! [[ "$QUEUE" =~ ^[1-9][0-9]*$ ]]; then
   echo "eval_background: QUEUE must be a whole number of runs at a time (1 or more), not '$QUEUE'" >&2; exit 2
+fi
+if [ -n "${FIRST_CORE:-}" ] && ! [[ "$FIRST_CORE" =~ ^[0-9]+$ ]]; then
+  echo "eval_background: FIRST_CORE must be a core's number (0 or more), not '$FIRST_CORE'" >&2; exit 2
 fi
 
 case ${1:-} in
@@ -131,6 +137,9 @@ case ${1:-} in
       [ "$fail" != - ] && args="$args --failures $fail"
       [ "$asms" != - ] && args="$args --asms $asms"
       [ -n "$part" ] && args="$args --part $part"
+      if [ "$cpus" = @ ] && [ -z "${QUEUE:-}" ]; then
+        echo "eval_background: '$spec' asks for a queue slot's core ('@'), which needs QUEUE=P" >&2; exit 2
+      fi
       pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
       env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
       if [ "$sim" = gpu ]; then
