@@ -144,7 +144,8 @@ def main() -> None:
         nargs="+",
         metavar="DIR",
         help="write DEST/results.json (the first DIR) from the results.json of the others (runs of one task set "
-        "split by scenario, e.g. GPU_SPLIT=1 in gpu_session.sh), then rewrite DEST's report and stop",
+        "split by scenario, e.g. GPU_SPLIT=1 in gpu_session.sh), then rewrite DEST's report and stop; DEST's own "
+        "trials are kept unless a later DIR holds the same trial (a later DIR's record wins)",
     )
     ap.add_argument(
         "--simulator",
@@ -155,7 +156,11 @@ def main() -> None:
     if args.merge:
         dest, *srcs = (Path(d) for d in args.merge)
         merged: dict = {}
-        for d in srcs:
+        # DEST's own trials first, so that merging new runs into it never drops what it held
+        # (the nineteenth session lost 82 trials that way, restored from a copy)
+        own = (dest / "results.json").exists() and dest.resolve() not in {d.resolve() for d in srcs}
+        kept = [dest] if own else []
+        for d in kept + srcs:
             if not (d / "results.json").exists():  # a run stopped before its first trial ended
                 print(f"{d}: no trials")
                 continue
@@ -169,7 +174,7 @@ def main() -> None:
         from lmjx.fileio import write_text_atomic
 
         write_text_atomic(dest / "results.json", json.dumps(recs, indent=1) + "\n")
-        print(f"{dest}/results.json: {len(recs)} trials from {len(srcs)} runs")
+        print(f"{dest}/results.json: {len(recs)} trials from {len(srcs)} runs" + (" and its own" if kept else ""))
         args.report = str(dest)
     if args.report:
         from lmjx.evaluate import EvalConfig, plots, report_markdown, simulator_description
