@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -166,6 +167,8 @@ def main() -> None:
                 continue
             for r in json.loads((d / "results.json").read_text()):
                 merged[(r["failure"], r["scenario"], r["asm"], r["seed"])] = r
+        if not merged:
+            sys.exit(f"eval_acceptance: --merge: no trials in {', '.join(str(d) for d in kept + srcs) or 'no folder'}")
         recs = sorted(
             merged.values(),
             key=lambda r: (r["failure"], r["scenario"], ["random", "lazy", "greedy"].index(r["asm"]), r["seed"]),
@@ -183,7 +186,12 @@ def main() -> None:
         from lmjx.robot import load_robot
 
         d = Path(args.report)
-        recs = json.loads((d / "results.json").read_text())
+        try:
+            recs = json.loads((d / "results.json").read_text())
+        except (OSError, ValueError) as e:
+            sys.exit(f"eval_acceptance: --report: cannot read {d / 'results.json'}: {e}")
+        if not recs:
+            sys.exit(f"eval_acceptance: --report: {d / 'results.json'} holds no trials")
         sim = next((r["sim"] for r in recs if r["sim"] != "none"), "cpu")
         cand = next((r["candidates"] for r in recs if r["candidates"]), 32)
         config = EvalConfig(tasks=recs[0]["tasks"], planner=PlannerConfig(greedy_candidates=cand))
@@ -198,7 +206,10 @@ def main() -> None:
     total = defaultdict(int)
     for kind, paths in (("paper", args.paper), ("hard", args.hard)):
         for p in paths:
-            recs = json.loads(Path(p).read_text())
+            try:
+                recs = json.loads(Path(p).read_text())
+            except (OSError, ValueError) as e:
+                sys.exit(f"eval_acceptance: --{kind}: cannot read {p}: {e}")
             c = cells(recs)
             fig = action_figures(recs)
             for k, v in fig.items():
