@@ -68,7 +68,6 @@ next_gpu() {  # the GPUs in turn, across launches: "CUDA_VISIBLE_DEVICES=k" ("" 
 start() {  # start() NAME DIR PIN ENV ARGS...: one run in a process session of its own
   local name=$1 dir=$2 pin=$3 env=$4; shift 4
   rm -f "$dir.rc"  # a run started again (to resume) is running until it writes it anew
-  [ "$pin" = "taskset -c @" ] && pin="taskset -c \$(( ${FIRST_CORE:-0} + LMJX_SLOT ))"  # (`dispatch` sets LMJX_SLOT)
   local job="cd $REPO && export PYTHONPATH=/tmp/site:$REPO PYTHONUNBUFFERED=1 ${LMJX_CORES:+LMJX_CORES=$LMJX_CORES} $env; \
     start=\$(date +%s); $pin python3 $* > $dir.json 2> $dir.err; \
     echo \"rc \$? after \$(( \$(date +%s) - start )) s\" > $dir.rc"
@@ -141,6 +140,7 @@ case ${1:-} in
         echo "eval_background: '$spec' asks for a queue slot's core ('@'), which needs QUEUE=P" >&2; exit 2
       fi
       pin=""; [ "$cpus" != - ] && pin="taskset -c $cpus"
+      [ "$cpus" = @ ] && pin="taskset -c \$(( ${FIRST_CORE:-0} + LMJX_SLOT ))"  # at run time (`dispatch` sets LMJX_SLOT)
       env=""; [ "$sim" = cpu ] && env="JAX_PLATFORMS=cpu"
       if [ "$sim" = gpu ]; then
         env="XLA_PYTHON_CLIENT_PREALLOCATE=false $(next_gpu)"
