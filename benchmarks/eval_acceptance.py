@@ -134,6 +134,14 @@ def hard_checks(c: dict) -> list[tuple[str, bool, str]]:
     return out
 
 
+def read_results(path: Path, flag: str) -> list[dict]:
+    """The trials of a results.json, or a one-line exit naming `flag` where it cannot be read."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        sys.exit(f"eval_acceptance: {flag}: cannot read {path}: {e}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--paper", action="append", default=[], help="results.json of a paper-set run")
@@ -165,7 +173,7 @@ def main() -> None:
             if not (d / "results.json").exists():  # a run stopped before its first trial ended
                 print(f"{d}: no trials")
                 continue
-            for r in json.loads((d / "results.json").read_text()):
+            for r in read_results(d / "results.json", "--merge"):
                 merged[(r["failure"], r["scenario"], r["asm"], r["seed"])] = r
         if not merged:
             sys.exit(f"eval_acceptance: --merge: no trials in {', '.join(str(d) for d in kept + srcs) or 'no folder'}")
@@ -186,10 +194,7 @@ def main() -> None:
         from lmjx.robot import load_robot
 
         d = Path(args.report)
-        try:
-            recs = json.loads((d / "results.json").read_text())
-        except (OSError, ValueError) as e:
-            sys.exit(f"eval_acceptance: --report: cannot read {d / 'results.json'}: {e}")
+        recs = read_results(d / "results.json", "--report")
         if not recs:
             sys.exit(f"eval_acceptance: --report: {d / 'results.json'} holds no trials")
         sim = next((r["sim"] for r in recs if r["sim"] != "none"), "cpu")
@@ -206,10 +211,7 @@ def main() -> None:
     total = defaultdict(int)
     for kind, paths in (("paper", args.paper), ("hard", args.hard)):
         for p in paths:
-            try:
-                recs = json.loads(Path(p).read_text())
-            except (OSError, ValueError) as e:
-                sys.exit(f"eval_acceptance: --{kind}: cannot read {p}: {e}")
+            recs = read_results(Path(p), f"--{kind}")
             c = cells(recs)
             fig = action_figures(recs)
             for k, v in fig.items():
