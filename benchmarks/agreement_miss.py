@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 from agreement_run import setup
 
-from lmjx.agreement import decision_states
-from lmjx.goalfield import GoalField
-from lmjx.planner import score, table_bounds
-from lmjx.scenarios import scenario
-from lmjx.trial import make_simulator
+from lmjx.evaluation.agreement import decision_states
+from lmjx.evaluation.trial import make_simulator
+from lmjx.planner.goalfield import GoalField
+from lmjx.planner.scoring import score, table_bounds
+from lmjx.sim.scenarios import scenario
 
 
 def main() -> None:

@@ -1,7 +1,7 @@
 """The GPU simulator's agreement test (tests/test_simulate_gpu.py, 200+ Greedy decisions
 against C MuJoCo) outside pytest, on any Warp device: its out-of-sample decisions (maps of
 seed 2026, trial seeds 500-511, the three scenarios, depth 3, 64 candidates) measured by
-`lmjx.agreement.measure`, the report written as JSON and its pass/fail against the
+`lmjx.evaluation.agreement.measure`, the report written as JSON and its pass/fail against the
 thresholds set before the test's first out-of-sample run.  On a machine without a GPU
 (`--device cpu`, Warp's CPU device: float32 as on the GPU, the same picks where checked)
 it is a stand-in for the GPU's run, not the test itself.
@@ -15,7 +15,7 @@ one core): a machine without a GPU may build them for one with,
     python benchmarks/agreement_run.py MAPS_DIR --save-decisions decisions.pkl.gz   # no GPU needed
     python benchmarks/agreement_run.py --decisions decisions.pkl.gz --out agree.json  # on the GPU
 
-(the file: a gzip'd pickle of `lmjx.agreement.Decision`s, with the maps' seed and sizes;
+(the file: a gzip'd pickle of `lmjx.evaluation.agreement.Decision`s, with the maps' seed and sizes;
 pickle runs code when read: load only files you made).
 """
 
@@ -26,7 +26,8 @@ import json
 import sys
 from pathlib import Path
 
-from lmjx.agreement import (
+from lmjx.errors import LmjxError
+from lmjx.evaluation.agreement import (
     MAP_SEED,
     MIN_DECISIONS,
     OUT_OF_SAMPLE_SEEDS,
@@ -36,11 +37,10 @@ from lmjx.agreement import (
     passes,
     save_decisions,
 )
-from lmjx.errors import LmjxError
-from lmjx.evaluate import load_maps
-from lmjx.fileio import write_text_atomic
-from lmjx.robot import load_robot
-from lmjx.trial import make_simulator
+from lmjx.evaluation.evaluate import load_maps
+from lmjx.evaluation.trial import make_simulator
+from lmjx.model.robot import load_robot
+from lmjx.runtime.fileio import write_text_atomic
 
 
 def setup(prog: str, failures: tuple[str, ...], maps_dir: Path | None, warp: bool = True) -> tuple:
@@ -50,9 +50,9 @@ def setup(prog: str, failures: tuple[str, ...], maps_dir: Path | None, warp: boo
     GpuSimConfig = None
     if warp:
         try:
-            import warp as _warp  # noqa: F401  (MuJoCo Warp's runtime; lmjx.simulate_gpu imports it when it runs)
+            import warp as _warp  # noqa: F401  (MuJoCo Warp's runtime; lmjx.sim.gpu imports it when it runs)
 
-            from lmjx.simulate_gpu import GpuSimConfig
+            from lmjx.sim.gpu import GpuSimConfig
         except ImportError as e:
             sys.exit(f"{prog}: {e} (the GPU extra: pip install -e '.[gpu]', or warp-lang alone for --device cpu)")
     robot = load_robot("panda")

@@ -20,12 +20,12 @@ import time
 import numpy as np
 from calibrate_tasks import CAL_BASE  # (this folder: the script's own)
 
-from lmjx.actions import TransitPlanner
-from lmjx.evaluate import trial_seed
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.trial import run_trial, setup_trial
+from lmjx.evaluation.evaluate import trial_seed
+from lmjx.evaluation.trial import run_trial, setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.transit import TransitPlanner
+from lmjx.types import PlannerConfig
 
 
 def main() -> None:

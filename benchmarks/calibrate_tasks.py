@@ -1,4 +1,4 @@
-"""Calibrate the paper task set (`lmjx.scenarios.PAPER_TASKS`, `PAPER_BUDGET`) with Random only.
+"""Calibrate the paper task set (`lmjx.sim.scenarios.PAPER_TASKS`, `PAPER_BUDGET`) with Random only.
 
 The paper gives no coordinates, goal sizes or budgets; it reports outcomes.  This script
 chooses the paper set's goal distance (per scenario), goal size and action budget so that
@@ -55,16 +55,17 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner
-from lmjx.cores import usable_cores
 from lmjx.errors import LmjxError
-from lmjx.evaluate import trial_seed
-from lmjx.executor import SimulatedRealWorld
-from lmjx.lockstep import run_lockstep
-from lmjx.mapfile import load_map
-from lmjx.planner import Planner, PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.scenarios import SCENARIOS, PaperTask, Scenario, in_goal, paper_variant, sample_layout, scenario
+from lmjx.evaluation.evaluate import trial_seed
+from lmjx.evaluation.lockstep import run_lockstep
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.edge_planner import Planner
+from lmjx.planner.transit import TransitPlanner
+from lmjx.runtime.cores import usable_cores
+from lmjx.sim.realworld import SimulatedRealWorld
+from lmjx.sim.scenarios import SCENARIOS, PaperTask, Scenario, in_goal, paper_variant, sample_layout, scenario
+from lmjx.types import PlannerConfig
 
 CAL_BASE = 7  # calibration trials' seed base (the evaluation's is 0)
 GOAL_MARGIN = PlannerConfig().goal_margin
@@ -242,7 +243,7 @@ def choose_p1(rows: list[dict], trials: int, need: float = 0.95, per_cell: int =
 
 
 def apply(choice: dict, path: Path) -> None:
-    """Write the choice into lmjx/scenarios.py (PAPER_TASKS, PAPER_BUDGET)."""
+    """Write the choice into lmjx/sim/scenarios.py (PAPER_TASKS, PAPER_BUDGET)."""
     import re
 
     tasks = ", ".join(f"{s}: PaperTask({d:.2f}, {choice['half']:.2f}, {choice['angles'][s]:.1f})"
@@ -271,7 +272,7 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=30, help="calibration trials per scenario (and distance)")
     ap.add_argument("--failures", default="case1,case2")
     ap.add_argument("--out", required=True, help="JSON file: the tracks, the grid and the choice")
-    ap.add_argument("--apply", action="store_true", help="write the choice into lmjx/scenarios.py")
+    ap.add_argument("--apply", action="store_true", help="write the choice into lmjx/sim/scenarios.py")
     ap.add_argument(
         "--scenarios",
         default=",".join(map(str, SCENARIOS)),

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.mapfile import load_map
+from lmjx.mapfile.read import load_map
 
 
 def main(a: str, b: str) -> None:

@@ -182,16 +182,16 @@ def main() -> None:
             key=lambda r: (r["failure"], r["scenario"], ["random", "lazy", "greedy"].index(r["asm"]), r["seed"]),
         )
         dest.mkdir(parents=True, exist_ok=True)
-        from lmjx.fileio import write_text_atomic
+        from lmjx.runtime.fileio import write_text_atomic
 
         write_text_atomic(dest / "results.json", json.dumps(recs, indent=1) + "\n")
         print(f"{dest}/results.json: {len(recs)} trials from {len(srcs)} runs" + (" and its own" if kept else ""))
         args.report = str(dest)
     if args.report:
-        from lmjx.evaluate import EvalConfig, plots, report_markdown, simulator_description
-        from lmjx.fileio import write_text_atomic
-        from lmjx.planner import PlannerConfig
-        from lmjx.robot import load_robot
+        from lmjx.evaluation.evaluate import EvalConfig, plots, report_markdown, simulator_description
+        from lmjx.model.robot import load_robot
+        from lmjx.runtime.fileio import write_text_atomic
+        from lmjx.types import PlannerConfig
 
         d = Path(args.report)
         recs = read_results(d / "results.json", "--report")

@@ -27,7 +27,7 @@
 # after every trial; a results.json carried in .evprev/NAME.json is copied there first, so the
 # run resumes it (benchmarks/evprev.py writes those from merged results; benchmarks/evparts.py
 # lists unfinished cells as parts holding only their missing trials).  `lmjx evaluate`
-# sizes its pools to the cores it is pinned to (lmjx/cores.py; LMJX_CORES=N, passed on, caps
+# sizes its pools to the cores it is pinned to (lmjx/runtime/cores.py; LMJX_CORES=N, passed on, caps
 # them without pinning).  The code runs from a copy made at launch (/tmp/lmjx_repo.<time>, one
 # per launch, so a later launch with other code leaves the running ones alone).  `wait` returns
 # after WAIT_S seconds or when every run has ended, prints each run's trials and state, and
@@ -46,7 +46,7 @@
 #
 # replays those trials in parts (benchmarks/recount_contacts.py --part K/N, writing
 # /tmp/lmjx_gpu/NAME/recount.json; merge with its --merge), with the executor of this checkout
-# or EXECUTOR (another counting rule's lmjx/executor.py, e.g. the one the trials ran with).
+# or EXECUTOR (another counting rule's lmjx/sim/realworld.py, e.g. the one the trials ran with).
 set -uo pipefail
 WORK=/tmp/lmjx_gpu
 OUT=${OUT:-$PWD/out/gpu}
@@ -154,7 +154,7 @@ case ${1:-} in
     date -u +"launched %H:%M:%S" ;;
   recount)
     REPO=/tmp/lmjx_repo.$(date +%s%N) && mkdir -p "$REPO" && cp -r lmjx kernels benchmarks pyproject.toml "$REPO/"
-    if [ -n "${EXECUTOR:-}" ]; then cp "$EXECUTOR" "$REPO/lmjx/executor.py" || exit 1; fi
+    if [ -n "${EXECUTOR:-}" ]; then cp "$EXECUTOR" "$REPO/lmjx/sim/realworld.py" || exit 1; fi
     files=""
     for f in ${FILES:?FILES names the results.json files}; do files="$files $(realpath -e "$f")" || exit 1; done
     for spec in ${RECOUNT:?RECOUNT names the parts}; do

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from evprev import belongs, read_records
 
-from lmjx.evaluate import trial_seed
+from lmjx.evaluation.evaluate import trial_seed
 
 PART_NAMES = "abcdefghijklmnopqrstuvwxyz"
 

@@ -23,8 +23,8 @@ import json
 import sys
 from pathlib import Path
 
-from lmjx.fileio import write_text_atomic
-from lmjx.planner import ASMS
+from lmjx.runtime.fileio import write_text_atomic
+from lmjx.types import ASMS
 
 
 def belongs(rec: dict, sim: str, tasks: str, scen: str, fail: str, asms: str) -> bool:

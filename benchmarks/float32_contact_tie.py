@@ -1,4 +1,4 @@
-"""Why the GPU simulator starts objects 0.1 micrometre lower (lmjx.simulate_gpu.SETTLE_NUDGE).
+"""Why the GPU simulator starts objects 0.1 micrometre lower (lmjx.sim.gpu.SETTLE_NUDGE).
 
 A box resting exactly on the table (zero distance, as the planner places what it observes)
 slides away with a random push and spin, for 1 s, in C MuJoCo (float64) and in MuJoCo Warp

@@ -19,7 +19,7 @@ exec > >(tee -a "$OUT/session.log") 2>&1
 [ -d /tmp/site/mujoco ] || python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
   --target /tmp/site .whl/*.whl || { echo "wheel install failed"; exit 1; }
 export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
-# Compiled kernels are kept in ~/.cache/lmjx by every lmjx command (lmjx/cache.py); a Warp
+# Compiled kernels are kept in ~/.cache/lmjx by every lmjx command (lmjx/runtime/cache.py); a Warp
 # kernel cache brought along in .wcache/warpcache.tgz spares compiling MuJoCo Warp's kernels.
 mkdir -p ~/.cache/lmjx && { [ -f .wcache/warpcache.tgz ] && tar xzf .wcache/warpcache.tgz -C ~/.cache/lmjx || true; }
 steps=${*:-smoke tests variants bench maps locks}
@@ -217,7 +217,7 @@ for step in $steps; do
       done
       python3 benchmarks/speedup.py "$OUT"/speedup5m_*.json ;;
     threads5m)
-      # Issue 10: where the threads of a 5M build stand (lmjx/threadprof.py), on 1 GPU, then on all.
+      # Issue 10: where the threads of a 5M build stand (lmjx/runtime/threadprof.py), on 1 GPU, then on all.
       for mode in --no-shard ""; do
         tag=${mode:+_1gpu}
         LMJX_THREAD_PROFILE="$OUT/threads5m${tag:-_all}.json" timeout 300 python3 -m lmjx.cli build-map \

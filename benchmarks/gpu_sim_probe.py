@@ -37,11 +37,11 @@ def main() -> None:
 
     import warp as wp
 
-    from lmjx.bench_planner import candidate_actions
-    from lmjx.planner import score
-    from lmjx.robot import load_robot
-    from lmjx.simulate import CpuSimulator
-    from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator
+    from lmjx.bench.planner import candidate_actions
+    from lmjx.model.robot import load_robot
+    from lmjx.planner.scoring import score
+    from lmjx.sim.cpu import CpuSimulator
+    from lmjx.sim.gpu import GpuSimConfig, GpuSimulator
 
     wp.config.quiet = True
     wp.init()
@@ -105,7 +105,7 @@ def main() -> None:
         "seg8": (replace(plain, segment=8), False),
         "seg128": (replace(plain, segment=128), False),
     }
-    from lmjx.scene import build_scene
+    from lmjx.sim.scene import build_scene
 
     fused_scene = build_scene(robot, sc, fuse_static=True)
 

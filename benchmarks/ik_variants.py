@@ -16,11 +16,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from lmjx.bench import plane_targets
-from lmjx.failure import parse_failure
-from lmjx.kernels.ik import IKSettings, ik_check, ik_solve
-from lmjx.reach import ReachConfig
-from lmjx.robot import load_robot
+from kernels.ik import IKSettings, ik_check, ik_solve
+from lmjx.bench.bench import plane_targets
+from lmjx.model.failure import parse_failure
+from lmjx.model.robot import load_robot
+from lmjx.reach.reachability import ReachConfig
 
 
 def main() -> None:

@@ -22,11 +22,12 @@ import time
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig, edges_over_target
-from lmjx.robot import load_robot
-from lmjx.trial import setup_trial
+from lmjx.evaluation.trial import setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.edge_planner import edges_over_target
+from lmjx.planner.transit import TransitPlanner
+from lmjx.types import PlannerConfig
 
 
 def main() -> None:

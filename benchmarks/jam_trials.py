@@ -12,10 +12,10 @@ import json
 import os
 import sys
 
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.trial import run_trial, setup_trial
+from lmjx.evaluation.trial import run_trial, setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.types import PlannerConfig
 
 folder = os.environ.get("LMJX_MAPS", "/tmp/ev")
 robot = load_robot("panda")

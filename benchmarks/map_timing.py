@@ -12,8 +12,8 @@ import sys
 import time
 
 t0 = time.perf_counter()
-from lmjx.reach import ReachConfig, reach_map  # noqa: E402
-from lmjx.robot import load_robot  # noqa: E402
+from lmjx.model.robot import load_robot  # noqa: E402
+from lmjx.reach.reachability import ReachConfig, reach_map  # noqa: E402
 
 robot = load_robot()
 print(f"import + model load {time.perf_counter() - t0:.2f} s")

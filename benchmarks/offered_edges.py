@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner
-from lmjx.executor import SimulatedRealWorld
-from lmjx.mapfile import load_map
-from lmjx.planner import edges_over_target
-from lmjx.robot import load_robot
-from lmjx.scenarios import sample_layout, scenario
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.edge_planner import edges_over_target
+from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.realworld import SimulatedRealWorld
+from lmjx.sim.scenarios import sample_layout, scenario
 
 
 def measure(map_path: str, scenarios: list[int], seeds: list[int], per: int, robot_name: str) -> dict:

@@ -30,14 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner, park_pose
 from lmjx.errors import LmjxError
-from lmjx.evaluate import trial_seed
-from lmjx.executor import SimulatedRealWorld
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig, edges_over_target
-from lmjx.robot import load_robot
-from lmjx.scenarios import in_goal, sample_layout, scenario
+from lmjx.evaluation.evaluate import trial_seed
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.clearance import park_pose
+from lmjx.planner.edge_planner import edges_over_target
+from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.realworld import SimulatedRealWorld
+from lmjx.sim.scenarios import in_goal, sample_layout, scenario
+from lmjx.types import PlannerConfig
 
 CAL_BASE = 7  # the calibration's seed base (calibrate_tasks.CAL_BASE)
 GOAL_MARGIN = PlannerConfig().goal_margin

@@ -1,7 +1,7 @@
 """Replay finished trials in the "real" world and count their transits' contacts again.
 
 A trial's record holds the edge of each executed action; the "real" world
-(`lmjx.executor.SimulatedRealWorld`) is drawn from the trial's seed and its observations'
+(`lmjx.sim.realworld.SimulatedRealWorld`) is drawn from the trial's seed and its observations'
 noise is drawn in the order of the executions.  Replaying the recorded edges in order (the
 transit to each built by the same `TransitPlanner` from the same arm state, last edge and
 trail, on the same scene as observed) therefore executes the same actions again: the replay
@@ -41,14 +41,17 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner
 from lmjx.errors import LmjxError
-from lmjx.evaluate import load_maps
-from lmjx.executor import SimulatedRealWorld
-from lmjx.fileio import write_text_atomic
-from lmjx.planner import Planner, PlannerConfig, StepRecord, goal_distance
-from lmjx.robot import load_robot
-from lmjx.scenarios import sample_layout, scenario
+from lmjx.evaluation.evaluate import load_maps
+from lmjx.model.robot import load_robot
+from lmjx.planner.edge_planner import Planner
+from lmjx.planner.records import StepRecord
+from lmjx.planner.scoring import goal_distance
+from lmjx.planner.transit import TransitPlanner
+from lmjx.runtime.fileio import write_text_atomic
+from lmjx.sim.realworld import SimulatedRealWorld
+from lmjx.sim.scenarios import sample_layout, scenario
+from lmjx.types import PlannerConfig
 
 TOL = 1.5e-4  # [m] the records' rounding (0.1 mm) and a little
 

@@ -19,9 +19,10 @@ import time
 import jax
 import numpy as np
 
-from lmjx.bundle import TRAJECTORIES, BundleConfig, EdgeKernels, sample_edges
-from lmjx.reach import reach_config, reach_map
-from lmjx.robot import load_robot
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.sampling import TRAJECTORIES, EdgeKernels, sample_edges
+from lmjx.model.robot import load_robot
+from lmjx.reach.reachability import reach_config, reach_map
 
 
 def _inputs(samples, kernel) -> list[list]:
@@ -166,7 +167,7 @@ def main() -> None:
             report["compute_speedup"] = round(report["one_device"]["compute_s"] / secs, 3)
     # copies, with glibc's default allocator and then as lmjx's commands set it
     report["copy_GBps"] = _copies(65536)
-    from lmjx.hostmem import return_large_buffers
+    from lmjx.runtime.hostmem import return_large_buffers
 
     return_large_buffers()
     report["copy_GBps_mmap_1MB"] = _copies(65536)

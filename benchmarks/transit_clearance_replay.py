@@ -11,7 +11,7 @@ the trial took the recorded edges (benchmarks/tunnel_push_weight2_h100_2026-11-2
 cpu_eval_w1.json); `--log`: every transit's figures as JSON too.  `--law constant` (the
 default) plans and executes the transits at constant speed, as the ninth session did (the
 trial is then the recorded one), and executes each transit a second time from the same state
-as `lmjx.timing.retime` times it (the present law: slowing to rest into sharp corners), its
+as `lmjx.planner.timelaw.retime` times it (the present law: slowing to rest into sharp corners), its
 least distance over the transit's physics steps printed beside ("retimed_min"; "real_min"
 covers the same steps of the recorded execution; benchmarks/transit_retime_2026-11-27.json
 measured each transit alone from its start with 0.3 s held after it, a stricter window: an
@@ -28,12 +28,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from lmjx import actions, executor
-from lmjx.actions import CONTROL_DT, Action, controls, transit_velocities
-from lmjx.evaluate import EvalConfig, evaluate, load_maps
-from lmjx.planner import PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.timing import retime
+from lmjx.evaluation.evaluate import EvalConfig, evaluate, load_maps
+from lmjx.model.robot import load_robot
+from lmjx.planner.timelaw import retime
+from lmjx.planner.transit import transit_velocities
+from lmjx.sim.controls import controls
+from lmjx.types import CONTROL_DT, Action, PlannerConfig
 
 log = []
 orig = executor.SimulatedRealWorld.execute

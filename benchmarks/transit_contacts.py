@@ -16,11 +16,11 @@ import json
 
 import numpy as np
 
-from lmjx import actions as acts
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.trial import setup_trial
+from lmjx.evaluation.trial import setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner import transit as acts
+from lmjx.types import PlannerConfig
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Peak resident memory of a command and all its descendants together (sampled every
 0.1 s from /proc), for builds that run more than one process (`lmjx build-map` writes its
-map in a process of its own, lmjx/mapwriter.py).  GNU time's "Maximum resident set size"
+map in a process of its own, lmjx/edges/mapwriter.py).  GNU time's "Maximum resident set size"
 is the largest single process's, not the sum.
 
     python benchmarks/tree_rss.py -- lmjx build-map --failure case2 --edges 5000000

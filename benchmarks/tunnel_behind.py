@@ -22,11 +22,12 @@ import time
 
 import numpy as np
 
-from lmjx.actions import FIXED_MARGIN, OBJECT_MARGIN, SceneBoxes, TransitPlanner, _box_kernel, scene_boxes
 from lmjx.errors import LmjxError
-from lmjx.failure import parse_failure
-from lmjx.robot import load_robot
-from lmjx.scenarios import scenario
+from lmjx.model.failure import parse_failure
+from lmjx.model.robot import load_robot
+from lmjx.planner.clearance import FIXED_MARGIN, OBJECT_MARGIN, SceneBoxes, box_kernel, scene_boxes
+from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.scenarios import scenario
 
 BEHIND = (0.025, 0.015, 0.03)  # [m] the box behind the target: half sizes (x, y, z)
 
@@ -71,7 +72,7 @@ def main() -> None:
         scene = SceneBoxes((*boxes.names, "behind"), np.append(boxes.movable, True),
                            np.vstack([boxes.centers, behind]), np.concatenate([boxes.rots, np.eye(3)[None]]),
                            np.vstack([boxes.halves, BEHIND]))  # fmt: skip
-        c = _box_kernel(robot, scene.padded(8)).run(q)["box_clearance"][:, : len(scene.names)]
+        c = box_kernel(robot, scene.padded(8)).run(q)["box_clearance"][:, : len(scene.names)]
         fixed = c[:, ~scene.movable].min(axis=1) >= FIXED_MARGIN
         inside = c[:, -1] < 0
         start = inside & fixed & (c[:, 0] >= OBJECT_MARGIN)

@@ -19,13 +19,14 @@ import json
 
 import numpy as np
 
-from lmjx.actions import TransitPlanner
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig, edges_over_target
-from lmjx.robot import load_robot
-from lmjx.scenarios import scenario
-from lmjx.scene import build_scene, object_qpos
-from lmjx.simulate import CpuSimulator
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.edge_planner import edges_over_target
+from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.cpu import CpuSimulator
+from lmjx.sim.scenarios import scenario
+from lmjx.sim.scene import build_scene, object_qpos
+from lmjx.types import PlannerConfig
 
 
 def main() -> None:

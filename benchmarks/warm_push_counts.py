@@ -1,9 +1,9 @@
-"""Compute a map's push counts (`lmjx.pushfield`, what `--push-weight` weighs the score by)
+"""Compute a map's push counts (`lmjx.planner.pushfield`, what `--push-weight` weighs the score by)
 for the scenarios of a task set, once, into lmjx's cache folder.
 
 Greedy and Lazy with a push weight (the default since 2026-11-27) need the counts of their
 map and scenario; each process computes them on first use and keeps them in the cache folder
-(`lmjx.pushfield.cached_counts`).  An evaluation started as dozens of processes at once would
+(`lmjx.planner.pushfield.cached_counts`).  An evaluation started as dozens of processes at once would
 compute them dozens of times side by side; run this first and they all find them there.
 Run it on the platform the evaluation runs on (the counts' key holds JAX's platform):
 
@@ -17,9 +17,10 @@ import sys
 import time
 
 from lmjx.errors import LmjxError
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig, _score_field
-from lmjx.scenarios import TASK_SETS, scenario
+from lmjx.mapfile.read import load_map
+from lmjx.planner.scoring import _score_field
+from lmjx.sim.scenarios import TASK_SETS, scenario
+from lmjx.types import PlannerConfig
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,7 +6,7 @@ bundle, paper Algorithms 1-2) and `plan_task` runs one task closed loop on a map
 spec such as 'case2' or 'J2=0.3,J4=-1.5') and returns a result with a one-line `repr` and
 the command's `--json` summary (`summary()`).  They print nothing (progress bars on stderr
 only with progress=True) and raise `LmjxError` for a user's mistake.  This module only
-wires the library together: the work is in `lmjx.edgestream` and `lmjx.trial`.
+wires the library together: the work is in `lmjx.edges.stream` and `lmjx.evaluation.trial`.
 """
 
 from __future__ import annotations
@@ -16,11 +16,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .failure import Failure, as_failure
-from .mapfile import MapFile, load_map
-from .planner import PlannerConfig, StepRecord, TrialResult
-from .robot import Robot, as_robot
+from lmjx.errors import ConfigError
+from lmjx.mapfile.read import MapFile, load_map
+from lmjx.model.failure import Failure, as_failure
+from lmjx.model.robot import Robot, as_robot
+from lmjx.planner.records import StepRecord, TrialResult
+from lmjx.types import PlannerConfig
 
 DEVICES = ("auto", "cpu", "gpu")
 TASK_SETS = ("paper", "hard")
@@ -137,9 +138,9 @@ def build_map(
     >>> b.edges["edges_valid"] > 0
     True
     """
-    from .bundle import BundleConfig
-    from .edgestream import build_map as stream_map
-    from .reach import reach_config
+    from lmjx.edges.bundle import BundleConfig
+    from lmjx.edges.stream import build_map as stream_map
+    from lmjx.reach.reachability import reach_config
 
     use_device(device)
     import jax
@@ -261,7 +262,7 @@ def planner_config(
     its best candidates from redrawn observations (`PlannerConfig.rescore_top`; None: 8 with
     lmjx's settings, 0 (off) with the paper's; a number given is kept with either), `servo` the
     planner simulator's servo model (`PlannerConfig.servo`: "robot", the default, or "playback")."""
-    from .trial import DEFAULT_CANDIDATES
+    from lmjx.evaluation.trial import DEFAULT_CANDIDATES
 
     config = PlannerConfig(
         asm=asm,
@@ -333,9 +334,9 @@ def plan_task(
     >>> r.actions <= 2 and len(r.steps) >= r.actions
     True
     """
-    from .fileio import check_writable
-    from .planner import ASMS
-    from .trial import SIMULATORS, make_simulator, resolve_simulator, run_trial, setup_trial
+    from lmjx.evaluation.trial import SIMULATORS, make_simulator, resolve_simulator, run_trial, setup_trial
+    from lmjx.runtime.fileio import check_writable
+    from lmjx.types import ASMS
 
     if scenario not in (1, 2, 3):
         raise ConfigError(f"scenario {scenario!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
@@ -360,7 +361,7 @@ def plan_task(
         extra = "" if rob.key == "panda" else f" --robot {rob.key}"
         raise ConfigError(f"{m.path} has no edges; build it with: lmjx build-map{extra} --failure {m.failure.spec}")
     if render is not None:
-        from .render import check_render_path
+        from lmjx.sim.render import check_render_path
 
         check_render_path(str(render))
         check_writable(render, "rendering")
@@ -378,7 +379,7 @@ def plan_task(
     setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
     recorder = None
     if render is not None:
-        from .render import Recorder
+        from lmjx.sim.render import Recorder
 
         recorder = Recorder(setup.world)
     trial = run_trial(setup)

@@ -177,14 +177,14 @@ def wait_for(condition: Callable[[], bool], p: subprocess.Popen, what: str, time
 
 @pytest.fixture(scope="session")
 def robot():
-    from lmjx.robot import load_robot  # imported here: tests/test_plain_reader.py imports no lmjx
+    from lmjx.model.robot import load_robot  # imported here: tests/test_plain_reader.py imports no lmjx
 
     return load_robot()
 
 
 @pytest.fixture(scope="session")
 def ur5e():
-    from lmjx.robot import load_robot
+    from lmjx.model.robot import load_robot
 
     return load_robot("ur5e")
 
@@ -192,7 +192,7 @@ def ur5e():
 @pytest.fixture(scope="session", params=["panda", "ur5e"])
 def arm(request):
     """Each shipped robot in turn, for the kernel tests that must hold for any arm."""
-    from lmjx.robot import load_robot
+    from lmjx.model.robot import load_robot
 
     return load_robot(request.param)
 
@@ -204,7 +204,7 @@ class Maps:
         self.robot, self.config, self.maps = robot, config, {}
 
     def __getitem__(self, spec: str):
-        from lmjx.reach import reach_map
+        from lmjx.reach.reachability import reach_map
 
         if spec not in self.maps:
             self.maps[spec] = reach_map(spec, self.config, robot=self.robot)
@@ -215,7 +215,7 @@ class Maps:
 def coarse(robot) -> Maps:
     """The Panda's maps of 5 cm cells (none, case1, case2, ...): the default map's IK
     program per failure (the same launch size), less work."""
-    from lmjx.reach import ReachConfig
+    from lmjx.reach.reachability import ReachConfig
 
     return Maps(robot, ReachConfig(cell=0.05))
 
@@ -223,7 +223,7 @@ def coarse(robot) -> Maps:
 @pytest.fixture(scope="session")
 def table1(robot) -> Maps:
     """The Panda's default maps (Table I)."""
-    from lmjx.reach import ReachConfig
+    from lmjx.reach.reachability import ReachConfig
 
     return Maps(robot, ReachConfig())
 
@@ -231,7 +231,7 @@ def table1(robot) -> Maps:
 @pytest.fixture(scope="session")
 def table1_ur5e(ur5e) -> Maps:
     """The UR5e's default maps (its Table I)."""
-    from lmjx.reach import reach_config
+    from lmjx.reach.reachability import reach_config
 
     return Maps(ur5e, reach_config(ur5e))
 
@@ -239,8 +239,8 @@ def table1_ur5e(ur5e) -> Maps:
 def ik_batch(robot, failure, settings=None, chunk: int | None = None):
     """An IKBatch on the Reach-Ability map's program for `failure` (its sites: the TCP, then
     the default interaction points; its settings and launch size): compiled once per run."""
-    from lmjx.ik_batch import IKBatch, default_chunk
-    from lmjx.reach import attempt_plan, reach_config
+    from lmjx.reach.ik_batch import IKBatch, default_chunk
+    from lmjx.reach.reachability import attempt_plan, reach_config
 
     config = reach_config(robot)
     sites = attempt_plan(robot, config)[0]
@@ -284,11 +284,12 @@ def plan_map(tmp_path_factory) -> Path:
 def _programs_ahead() -> list[Callable[[], None]]:
     """What `_compile_ahead` compiles, in about the order the tests first need it: the
     programs (ChunkedKernel keys) the tests and the commands they run build themselves."""
-    from lmjx.actions import _clearance_kernel
-    from lmjx.bundle import BundleConfig, rollout_kernel
-    from lmjx.failure import parse_failure
-    from lmjx.reach import attempt_plan, reach_config
-    from lmjx.robot import load_robot
+    from lmjx.edges.bundle import BundleConfig
+    from lmjx.edges.sampling import rollout_kernel
+    from lmjx.model.failure import parse_failure
+    from lmjx.model.robot import load_robot
+    from lmjx.planner.clearance import clearance_kernel
+    from lmjx.reach.reachability import attempt_plan, reach_config
 
     panda, ur, tiny = load_robot("panda"), load_robot("ur5e"), load_robot(str(TINY_ARM))
     config = BundleConfig()
@@ -310,7 +311,7 @@ def _programs_ahead() -> list[Callable[[], None]]:
         rollout(panda, "case2", False),
         ik(panda, "none"),
         rollout(panda, "none", True),
-        lambda: _clearance_kernel(panda).compile(),
+        lambda: clearance_kernel(panda).compile(),
         ik(ur, "case1"),
         ik(ur, "none"),
         ik(ur, "case2"),

@@ -32,7 +32,7 @@ transit leaving a contact may come only 0.2 mm nearer than it began (was 1 mm) a
 tenth of the transits' speed inside the margins (was a quarter); the same edges, Lazy's and
 Greedy's execution 7.70 -> 8.42 s, final distances within 6 um of the previous ones.  A
 seventh, 2026-11-27 (issue 19, a transit that touched the tunnel's roof): a transit slows to
-rest into each sharp corner of its path and speeds up out of it (`lmjx.timing`); Random's
+rest into each sharp corner of its path and speeds up out of it (`lmjx.planner.timelaw`); Random's
 transit has none and is as it was; Lazy's and Greedy's second transit (the retreat, then on)
 has one: the same edges, execution 8.42 -> 8.82 s, final distances 1 nm apart.  The
 trials run with no push weight (`PlannerConfig.push_weight`, the default until 2026-11-27,
@@ -58,7 +58,7 @@ def _digest(a: np.ndarray) -> str:
 
 
 def map_figures(path: str) -> dict:
-    from lmjx.mapfile import load_map
+    from lmjx.mapfile.read import load_map
 
     m = load_map(path)
     r, e = m.reach, m.edges
@@ -75,10 +75,10 @@ def map_figures(path: str) -> dict:
 
 
 def trial_figures(path: str) -> dict:
-    from lmjx.mapfile import load_map
-    from lmjx.planner import PlannerConfig
-    from lmjx.robot import load_robot
-    from lmjx.trial import run_trial, setup_trial
+    from lmjx.evaluation.trial import run_trial, setup_trial
+    from lmjx.mapfile.read import load_map
+    from lmjx.model.robot import load_robot
+    from lmjx.types import PlannerConfig
 
     robot = load_robot()
     m = load_map(path)

@@ -14,7 +14,7 @@ from test_edgestream import attributes, same_datasets
 
 import lmjx
 from lmjx.errors import ConfigError, FailureSpecError, MapFileError
-from lmjx.robot import MODEL_PATH
+from lmjx.model.robot import MODEL_PATH
 
 TINY = lmjx.ReachConfig(cell=0.25, attempts=2)  # 4 x 4 cells, one PM and one NPM attempt: two launches
 
@@ -57,8 +57,8 @@ def test_names_and_objects_that_do_not_fit_are_refused(robot):
 
 
 def test_reprs_are_one_short_line(robot, tiny_case2, small_map):
-    from lmjx.bundle import BundleConfig
-    from lmjx.planner import PlannerConfig
+    from lmjx.edges.bundle import BundleConfig
+    from lmjx.types import PlannerConfig
 
     with lmjx.load_map(small_map) as m:
         objects = [robot, m, m.robot, m.reach, m.edges, m.failure, tiny_case2, TINY, BundleConfig(edges=200),

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from conftest import TINY_ARM, TINY_ATLAS, Collected, cli, cli_process, finish, ik_batch, random_configs, wait_for
 
-from lmjx.atlas import AtlasConfig, entries, expected_maps, lock_angles, read_atlas, same_content
-from lmjx.failure import parse_failure
-from lmjx.ik_batch import IKBatch
-from lmjx.reach import ReachConfig
+from lmjx.model.failure import parse_failure
+from lmjx.reach.atlas import AtlasConfig, entries, expected_maps, lock_angles, read_atlas, same_content
+from lmjx.reach.ik_batch import IKBatch
+from lmjx.reach.reachability import ReachConfig
 
 # a small atlas of the four-joint test arm (its program compiles several times faster than the
 # Panda's): 6 pairs x 2 x 2 angles, 4 x 5 cells, 4 attempts of 2 restarts (conftest.TINY_ATLAS)
@@ -71,7 +71,7 @@ def _both(robot, spec, n, seed):
 def tiny_arm():
     """The masked program is the same code for any arm: the test arm's (its programs compile
     several times faster than the Panda's)."""
-    from lmjx.robot import load_robot
+    from lmjx.model.robot import load_robot
 
     return load_robot(str(TINY_ARM))
 

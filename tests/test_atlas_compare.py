@@ -1,4 +1,4 @@
-"""`lmjx atlas --compare` (lmjx/atlas_compare.py) on synthetic atlases whose outcomes are
+"""`lmjx atlas --compare` (lmjx/reach/atlas_compare.py) on synthetic atlases whose outcomes are
 known by construction: the counts, shares and medians, the page's generated block between
 its markers (the prose around it kept), the figure.  No kernel runs here; the CLI path on a
 real (tiny) atlas is in tests/test_atlas.py."""
@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lmjx.atlas import AtlasConfig, AtlasState, read_atlas, write_atlas
-from lmjx.atlas_compare import BEGIN, END, arm_survival, compare_markdown, write_page
 from lmjx.errors import ConfigError
-from lmjx.reach import NPM, PM, UNREACHABLE, ReachConfig
+from lmjx.reach.atlas import AtlasConfig, AtlasState, read_atlas, write_atlas
+from lmjx.reach.atlas_compare import BEGIN, END, arm_survival, compare_markdown, write_page
+from lmjx.reach.reachability import NPM, PM, UNREACHABLE, ReachConfig
 
 CELL = 0.5  # 2 x 2 cells of 0.25 m^2
 

@@ -1,4 +1,4 @@
-"""lmjx.batching.ChunkedKernel: padded chunks give every item's result, and the `kept`
+"""lmjx.runtime.batching.ChunkedKernel: padded chunks give every item's result, and the `kept`
 outputs come back for the kept items only, in item order: compacted on the device, copying
 only the blocks that hold them (the accelerators' way, asked for here on the CPU), or
 selected on the host (a CPU's default); checked against plain numpy on the same items."""
@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from lmjx.batching import KEEP_BLOCKS, ChunkedKernel
+from lmjx.runtime.batching import KEEP_BLOCKS, ChunkedKernel
 
 
 class _Out(NamedTuple):
@@ -93,7 +93,7 @@ import sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_batching import _one, _reference
-from lmjx.batching import ChunkedKernel
+from lmjx.runtime.batching import ChunkedKernel
 for n, chunk, frac in [(100, 7, 0.5), (500, 40, 0.3), (64, 64, 1.0), (50, 20, 0.0)]:
     rng = np.random.default_rng(n)
     x = rng.random((n, 5)).astype(np.float32)

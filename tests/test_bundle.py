@@ -9,13 +9,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.bundle import BundleConfig, build_bundle, rollout_kernel
+from kernels.rollout import REASONS, Limits
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.chunk import build_bundle
+from lmjx.edges.rollout_ref import ReferenceRollout
+from lmjx.edges.sampling import rollout_kernel
 from lmjx.errors import ConfigError
-from lmjx.failure import parse_failure
-from lmjx.kernels.rollout import REASONS, Limits
-from lmjx.mapfile import load_map
-from lmjx.reach import attempt_plan
-from lmjx.rollout_ref import ReferenceRollout
+from lmjx.mapfile.read import load_map
+from lmjx.model.failure import parse_failure
+from lmjx.reach.reachability import attempt_plan
 
 CONFIG = BundleConfig()  # the edges' settings (100 steps of 0.02 s at most)
 SETTINGS = CONFIG.rollout_settings()

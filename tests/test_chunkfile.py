@@ -1,4 +1,4 @@
-"""A streamed build's chunk files (lmjx.chunkfile): a saved chunk reads back bit for bit,
+"""A streamed build's chunk files (lmjx.edges.chunkfile): a saved chunk reads back bit for bit,
 whole or in part; a file a machine crash truncated is dropped from the saved ones, and one
 whose bytes changed is removed with an error that says to rerun."""
 
@@ -9,8 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lmjx import chunkfile
-from lmjx.bundle import EdgeChunk
+from lmjx.edges import chunkfile
+from lmjx.edges.chunk import EdgeChunk
 
 
 def _chunk(seed: int, edges: int = 37) -> EdgeChunk:

@@ -96,7 +96,7 @@ def test_output_formats_from_the_extension(tmp_path):
 
 
 def test_lock_search_warns_when_its_best_lock_reaches_nothing(monkeypatch, tmp_path):
-    import lmjx.locksearch as ls
+    import lmjx.reach.locksearch as ls
 
     def nothing(joints, grids, config, robot=None, base=None, progress=False):
         shape = tuple(len(g) for g in grids)
@@ -112,7 +112,7 @@ def test_lock_search_warns_when_its_best_lock_reaches_nothing(monkeypatch, tmp_p
 
 
 def test_progress_lines_off_a_terminal(monkeypatch, capsys):
-    import lmjx.progress as progress
+    import lmjx.runtime.progress as progress
 
     monkeypatch.setattr(progress, "LINE_SECONDS", 0.0)
     monkeypatch.delenv("LMJX_PROGRESS", raising=False)
@@ -175,7 +175,7 @@ def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
 def test_evaluation_plots_when_nothing_succeeds(tmp_path):
     """The figures from results where no trial succeeds (and one cell of a single trial): no
     warning (matplotlib's 'No artists with labels' among them), both files written."""
-    from lmjx.evaluate import plots
+    from lmjx.evaluation.evaluate import plots
 
     failed = {"success": False, "actions": 30, "execution_s": 50.0}
     records = [

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from conftest import random_configs
 
-from lmjx.kernels.collision import (
+from kernels.collision import (
     capsule_box_clearance,
     capsule_endpoints,
     segment_distance,
     self_clearance,
     table_clearance,
 )
-from lmjx.kernels.kinematics import body_poses
-from lmjx.kernels.math3 import cmat, cvec
+from kernels.kinematics import body_poses
+from kernels.math3 import cmat, cvec
 
 
 def _clearances(robot, q):
@@ -195,10 +195,10 @@ def test_scene_box_clearance_matches_mj_geom_distance(robot, number):
     inputs) against C MuJoCo's mj_geomDistance between every arm capsule and every box of a
     scenario's scene (scenario 3: twelve movable boxes, turned; scenario 2: the tunnel's fixed
     walls and roof), at random configurations: the smallest over the capsules per box."""
-    from lmjx.actions import TransitPlanner
-    from lmjx.failure import parse_failure
-    from lmjx.scenarios import sample_layout, scenario
-    from lmjx.scene import build_scene, object_qpos, read_objects, set_state
+    from lmjx.model.failure import parse_failure
+    from lmjx.planner.transit import TransitPlanner
+    from lmjx.sim.scenarios import sample_layout, scenario
+    from lmjx.sim.scene import build_scene, object_qpos, read_objects, set_state
 
     sc = scenario(number, tasks="hard")
     scene = build_scene(robot, sc)

@@ -13,9 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from lmjx.compiletime import compile_seconds, jax_compile_seconds
-from lmjx.lockstep import _simulate
-from lmjx.planner import Planner, Simulate, StepRecord, simulate_request
+from lmjx.evaluation.lockstep import _simulate
+from lmjx.planner.edge_planner import Planner, simulate_request
+from lmjx.planner.records import StepRecord
+from lmjx.planner.requests import Simulate
+from lmjx.runtime.compiletime import compile_seconds, jax_compile_seconds
 
 SIM_COMPILE = 0.2  # [s] what the stand-in simulator "compiles" on its first call
 

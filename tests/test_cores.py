@@ -1,4 +1,4 @@
-"""lmjx.cores: the cores a run may use."""
+"""lmjx.runtime.cores: the cores a run may use."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import os
 
 import pytest
 
-from lmjx.cores import usable_cores
 from lmjx.errors import ConfigError
+from lmjx.runtime.cores import usable_cores
 
 
 def test_usable_cores_follow_the_affinity():

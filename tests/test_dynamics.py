@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 from conftest import random_configs
 
-from lmjx.kernels.dynamics import friction, inverse_dynamics_with_friction, rnea
-from lmjx.rollout_ref import gaz_friction
+from kernels.dynamics import friction, inverse_dynamics_with_friction, rnea
+from lmjx.edges.rollout_ref import gaz_friction
 
 REL_TOL = 1e-4  # the acceptance bound, float32 kernels against float64 MuJoCo
 

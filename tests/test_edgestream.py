@@ -1,4 +1,4 @@
-"""Maps of any size (lmjx.edgestream): streamed builds give the in-memory bundle's datasets
+"""Maps of any size (lmjx.edges.stream): streamed builds give the in-memory bundle's datasets
 for any chunk size, any number of devices and processes; a killed build resumes to the
 uninterrupted file; the preflight refuses what cannot fit or would take days; a map opened
 lazily makes the planner's decisions a map read whole makes.
@@ -21,11 +21,13 @@ import numpy as np
 import pytest
 from conftest import TINY_ARM, TINY_MAP, Collected, cli, cli_process, finish, wait_for
 
-from lmjx import chunkfile
-from lmjx.bundle import BundleConfig, build_bundle
-from lmjx.edgestream import missing_ranges, preflight
-from lmjx.mapfile import load_map, write_map
-from lmjx.reach import ReachConfig
+from lmjx.edges import chunkfile
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.chunk import build_bundle
+from lmjx.edges.stream import missing_ranges, preflight
+from lmjx.mapfile.read import load_map
+from lmjx.mapfile.write import write_map
+from lmjx.reach.reachability import ReachConfig
 
 # the test arm's build without its chunk size (each test gives its own)
 BUILD = ["build-map", *TINY_MAP[: TINY_MAP.index("--chunk")]]
@@ -75,23 +77,23 @@ def test_a_build_reports_where_its_threads_are(small_map):
     """LMJX_THREAD_PROFILE: the sampled threads of the build, grouped, each with its places."""
     groups = json.loads(small_map.with_name("threads.json").read_text())["groups"]
     assert {"MainThread", "lmjx-chunk", "lmjx-map-feed", "lmjx-pack"} <= set(groups)
-    assert {"writer/lmjx-map-writer", "writer/lmjx-write", "writer/lmjx-read"} <= set(groups)  # lmjx.mapwriter
+    assert {"writer/lmjx-map-writer", "writer/lmjx-write", "writer/lmjx-read"} <= set(groups)  # lmjx.edges.mapwriter
     chunk = [where for where, _ in groups["lmjx-chunk"]["top"]]
     assert any(w.split(":")[0] in ("batching.py", "bundle.py", "edgestream.py", "ik_batch.py") for w in chunk)
 
 
 def test_chunk_size_and_memory_do_not_change_the_datasets(tiny_map, tmp_path, monkeypatch):
-    # computed in chunks of 500 and packed in units of 150 (lmjx.mapwriter.PACK_EDGES)
-    import lmjx.mapwriter
+    # computed in chunks of 500 and packed in units of 150 (lmjx.edges.mapwriter.PACK_EDGES)
+    import lmjx.edges.mapwriter
 
-    monkeypatch.setattr(lmjx.mapwriter, "PACK_EDGES", 150)
+    monkeypatch.setattr(lmjx.edges.mapwriter, "PACK_EDGES", 150)
     other = tmp_path / "b.h5"
     r = cli(*BUILD, "--chunk", "500", "--out", other).ok()
     assert "preflight:" in r.stderr
     assert same_datasets(tiny_map, other) == []
     assert not Path(str(other) + ".partial").exists()
-    # the in-memory bundle (lmjx.bundle.build_bundle, in chunks of 250) writes the same datasets
-    from lmjx.robot import load_robot
+    # the in-memory bundle (lmjx.edges.chunk.build_bundle, in chunks of 250) writes the same datasets
+    from lmjx.model.robot import load_robot
 
     m = load_map(tiny_map, load_robot(str(TINY_ARM)))
     bundle = build_bundle(m.reach, replace(m.edges.config, build_chunk=250), robot=m.robot)
@@ -170,9 +172,9 @@ def test_preflight_refuses_days_of_work_without_yes_and_missing_room(robot, tmp_
     # no room: stops before any work
     import shutil
 
-    from lmjx.edgestream import build_map
+    from lmjx.edges.stream import build_map
     from lmjx.errors import ConfigError, OutputPathError
-    from lmjx.failure import parse_failure
+    from lmjx.model.failure import parse_failure
 
     def build(edges: int) -> None:
         build_map(tmp_path / "m.h5", parse_failure("case2", robot), ReachConfig(), BundleConfig(edges=edges), robot,
@@ -228,12 +230,12 @@ def test_two_devices_and_two_processes_build_the_same_file(tiny_map, tmp_path):
 def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, plan_map):
     """The planner on a map whose states stay in the file (read on demand) makes the same
     Greedy decisions as on the map read into memory; `lmjx info` reads no states."""
-    from lmjx.executor import Observation
-    from lmjx.lazystates import StateReader
-    from lmjx.planner import Planner, PlannerConfig
-    from lmjx.scenarios import sample_layout, scenario
-    from lmjx.scene import build_scene, object_qpos
-    from lmjx.simulate import CpuSimulator
+    from lmjx.mapfile.lazystates import StateReader
+    from lmjx.planner.edge_planner import Planner
+    from lmjx.sim.cpu import CpuSimulator
+    from lmjx.sim.scenarios import sample_layout, scenario
+    from lmjx.sim.scene import build_scene, object_qpos
+    from lmjx.types import Observation, PlannerConfig
 
     whole, lazy = load_map(plan_map, robot, lazy=False), load_map(plan_map, robot, lazy=True)
     assert isinstance(whole.edges.q, np.ndarray) and isinstance(lazy.edges.q, StateReader) and lazy.edges.q.fast
@@ -259,10 +261,10 @@ def test_a_lazily_opened_map_decides_as_a_map_read_whole(robot, plan_map):
 
 
 def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_path):
-    """lmjx.mapwriter: an error in the writing process reaches the build with its message
+    """lmjx.edges.mapwriter: an error in the writing process reaches the build with its message
     (and its traceback there); a writing process killed outright stops the build too, at
     any point, never a hang."""
-    from lmjx.mapwriter import MapWriter
+    from lmjx.edges.mapwriter import MapWriter
 
     reach = load_map(small_map, robot).reach
     config = BundleConfig(edges=1500, seed=1)

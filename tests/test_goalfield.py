@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from lmjx.goalfield import GoalField
-from lmjx.scenarios import scenario
+from lmjx.planner.goalfield import GoalField
+from lmjx.sim.scenarios import scenario
 
 LO, HI = np.array([-0.5, -1.1]), np.array([1.2, 1.1])
 

@@ -1,4 +1,4 @@
-"""lmjx.hostmem: glibc's allocator set to return large buffers (every lmjx command calls it)."""
+"""lmjx.runtime.hostmem: glibc's allocator set to return large buffers (every lmjx command calls it)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from lmjx.hostmem import return_large_buffers
+from lmjx.runtime.hostmem import return_large_buffers
 
 # Runs in a fresh interpreter: 40 rounds of two 16 MB buffers freed (each allocated after the
 # previous one was freed, the pattern that raises glibc's dynamic mmap threshold), with a
@@ -21,7 +21,7 @@ from lmjx.hostmem import return_large_buffers
 PROBE = """
 import ctypes, json, sys
 import numpy as np
-from lmjx.hostmem import return_large_buffers
+from lmjx.runtime.hostmem import return_large_buffers
 if sys.argv[1] == "on":
     assert return_large_buffers()
 class Info(ctypes.Structure):

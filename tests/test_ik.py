@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import ik_batch, random_configs
 
-from lmjx.failure import parse_failure
+from lmjx.model.failure import parse_failure
 
 TCP, HAND, WRIST = 0, 1, 2  # indices into the program's sites
 
@@ -70,7 +70,7 @@ def test_round_trip_position_ik(robot):
 
 @pytest.mark.parametrize("name, spec", [("panda", "case1"), ("panda", "case2"), ("ur5e", "case1")])
 def test_locked_joints_limits_and_acceptance(name, spec):
-    from lmjx.robot import load_robot
+    from lmjx.model.robot import load_robot
 
     robot = load_robot(name)
     failure = parse_failure(spec, robot)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import random_configs
 
-from lmjx.kernels.kinematics import body_poses, body_poses_array, site_jacobian_array, site_positions_array
+from kernels.kinematics import body_poses, body_poses_array, site_jacobian_array, site_positions_array
 
 TOL = 1e-5  # metres (and unitless for rotations / Jacobians), float32 kernels
 
@@ -65,7 +65,7 @@ def test_jacobians_match_mujoco(arm, configs):
 def test_fk_and_jacobian_match_pytorch_kinematics(arm, configs):
     torch = pytest.importorskip("torch")
     pytest.importorskip("pytorch_kinematics")
-    from lmjx.baselines import pk_chain
+    from lmjx.bench.baselines import pk_chain
 
     chain = pk_chain(arm, "tcp", dtype="float64")
     qt = torch.tensor(configs, dtype=torch.float64)
@@ -132,7 +132,7 @@ def _ur5e_dh(q: np.ndarray) -> np.ndarray:
 def test_ur5e_flange_matches_ur_dh_table():
     """lmjx's UR5e: the flange (position to 1e-6 m, orientation to 1e-6) from C MuJoCo and
     from the float64 kernel equals UR's DH chain over random configurations."""
-    from lmjx.robot import load_robot
+    from lmjx.model.robot import load_robot
 
     ur = load_robot("ur5e")
     q = random_configs(ur, 300, seed=5)

@@ -1,4 +1,4 @@
-"""The lazy state reader (lmjx/lazystates.py) against h5py reading the same datasets."""
+"""The lazy state reader (lmjx/mapfile/lazystates.py) against h5py reading the same datasets."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from lmjx.lazystates import StateReader
-from lmjx.mapfile import STATE_ROWS, _write_chunks
+from lmjx.mapfile.lazystates import StateReader
+from lmjx.mapfile.schema import STATE_ROWS
+from lmjx.mapfile.write import _write_chunks
 
 
 @pytest.fixture(scope="module")

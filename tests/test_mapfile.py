@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from lmjx.errors import MapFileError
-from lmjx.mapfile import load_map, write_reach_map
+from lmjx.mapfile.read import load_map
+from lmjx.mapfile.write import write_reach_map
 
 
 @pytest.fixture(scope="module")

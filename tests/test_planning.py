@@ -13,24 +13,19 @@ import numpy as np
 import pytest
 from conftest import benchmark_module, cli
 
-from lmjx.actions import (
-    CONTROL_DT,
-    JAM_MARGIN,
-    LEAVE_TOLERANCE,
-    MIN_EDGE_STATES,
-    OBJECT_MARGIN,
-    TransitPlanner,
-    controls,
-    park_pose,
-)
-from lmjx.executor import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
-from lmjx.failure import parse_failure
-from lmjx.mapfile import load_map
-from lmjx.planner import ENDS, PlannerConfig, score
-from lmjx.scenarios import in_goal, sample_layout, scenario
-from lmjx.scene import build_scene, object_qpos, read_objects, set_state
-from lmjx.simulate import CpuSimulator
-from lmjx.trial import run_trial, setup_trial
+from lmjx.evaluation.trial import run_trial, setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.failure import parse_failure
+from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, MIN_EDGE_STATES, OBJECT_MARGIN, park_pose
+from lmjx.planner.records import ENDS
+from lmjx.planner.scoring import score
+from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.controls import controls
+from lmjx.sim.cpu import CpuSimulator
+from lmjx.sim.realworld import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
+from lmjx.sim.scenarios import in_goal, sample_layout, scenario
+from lmjx.sim.scene import build_scene, object_qpos, read_objects, set_state
+from lmjx.types import CONTROL_DT, PlannerConfig
 
 
 @pytest.mark.parametrize("n", [1, 2, 3])
@@ -344,13 +339,13 @@ def test_batched_transits_equal_c_mujoco_transits(robot, small_map):
 
 
 def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
-    """Trials run together (lmjx.lockstep, as lmjx evaluate runs them: one TransitPlanner per
+    """Trials run together (lmjx.evaluation.lockstep, as lmjx evaluate runs them: one TransitPlanner per
     map, each trial its own layout) decide as they do alone.  Lazy on the CPU builds its tries
     one at a time, waiting for each simulation while the other trials set their scenes: each
     try must still be checked against its own trial's scene."""
-    from lmjx.actions import TransitPlanner
-    from lmjx.lockstep import run_lockstep
-    from lmjx.trial import make_simulator
+    from lmjx.evaluation.lockstep import run_lockstep
+    from lmjx.evaluation.trial import make_simulator
+    from lmjx.planner.transit import TransitPlanner
 
     m = load_map(plan_map)
     sim = make_simulator(robot, 1, "cpu", "hard")
@@ -405,8 +400,8 @@ class _BatchPreferringCpu(CpuSimulator):
 def test_lazy_in_one_batch_chooses_as_lazy_one_by_one(robot, plan_map):
     """With a simulator that prefers batches, Lazy simulates its tries at once and takes the
     first improvement in their order: the same choice as trying them one at a time."""
-    from lmjx.executor import Observation
-    from lmjx.planner import Planner
+    from lmjx.planner.edge_planner import Planner
+    from lmjx.types import Observation
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -432,7 +427,8 @@ def test_redrawn_observations_spread_as_the_cameras_noise():
     """`drawn_starts`: x, y and yaw of each upright object redrawn with the observation noise
     the "real" world's camera has (the executor's figures); everything else kept; an object
     seen off its resting height (fallen: as the executor's observation tells it) kept as seen."""
-    from lmjx.planner import RESCORE_POS_NOISE, RESCORE_YAW_NOISE, drawn_starts
+    from lmjx.planner.scoring import drawn_starts
+    from lmjx.types import RESCORE_POS_NOISE, RESCORE_YAW_NOISE
 
     world = SimulatedRealWorld.__new__(SimulatedRealWorld)
     SimulatedRealWorld.__init__(world, None, 0)  # type: ignore[arg-type]
@@ -461,9 +457,10 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
     decides the same; without rescoring the pick is the best of the observed start."""
     from dataclasses import replace
 
-    from lmjx.executor import Observation
-    from lmjx.lockstep import _simulate as lockstep_simulate
-    from lmjx.planner import Planner, drawn_starts, edges_over_target
+    from lmjx.evaluation.lockstep import _simulate as lockstep_simulate
+    from lmjx.planner.edge_planner import Planner, edges_over_target
+    from lmjx.planner.scoring import drawn_starts
+    from lmjx.types import Observation
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -497,7 +494,7 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
         assert rec.rescored["mean_m"] == pytest.approx(mean.min(), abs=1e-4)
         assert rec.rescored["changed"] == (best[np.argmin(mean)] != best[0])
         assert rec.summary()["rescored"] == rec.rescored
-        batch.draws = np.random.default_rng(seed)  # answered as lmjx.lockstep answers a GPU's batches
+        batch.draws = np.random.default_rng(seed)  # answered as lmjx.evaluation.lockstep answers a GPU's batches
         steps, answer = batch.decide(obs, np.random.default_rng(seed)), None
         while True:
             try:
@@ -532,8 +529,8 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
 
 
 def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
-    from lmjx.simulate_gpu import warp_problem
-    from lmjx.trial import resolve_simulator
+    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.sim.gpu import warp_problem
 
     if warp_problem() is not None:
         name, why = resolve_simulator("auto")
@@ -572,8 +569,9 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     FIXED_MARGIN from a fixed obstacle too (an edge is cut short before its first state that
     does not, and kept only with MIN_EDGE_STATES states left); edges whose start lies against
     an object are not offered; acting edges act within their executed states."""
-    from lmjx.actions import ACT_DEPTH, FIXED_MARGIN, OBJECT_MARGIN
-    from lmjx.planner import edges_over_target
+    from lmjx.planner.clearance import FIXED_MARGIN, OBJECT_MARGIN
+    from lmjx.planner.edge_planner import edges_over_target
+    from lmjx.planner.transit import ACT_DEPTH
 
     m = load_map(plan_map)
     sc = scenario(number, tasks="hard")
@@ -624,8 +622,9 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
     is the edge's own states from there, FIXED_MARGIN clear of the fixed obstacles, and the
     transit keeps every margin.  Edges offered without the option are offered alike with it;
     no edge whose start is blocked by a movable object alone is entered late."""
-    from lmjx.actions import FIXED_MARGIN, LATE_TRIES, OBJECT_MARGIN
-    from lmjx.planner import edges_over_target
+    from lmjx.planner.clearance import FIXED_MARGIN, OBJECT_MARGIN
+    from lmjx.planner.edge_planner import edges_over_target
+    from lmjx.planner.transit import LATE_TRIES
 
     m = load_map(plan_map)
     sc = scenario(2, tasks="hard")
@@ -670,12 +669,12 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
 
 
 def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan_map):
-    """The GPU simulator's agreement test (`lmjx.agreement.decision_states`) decides among
+    """The GPU simulator's agreement test (`lmjx.evaluation.agreement.decision_states`) decides among
     the planner's candidates: in every decision state (a trial's start, and after a random
     push) each candidate's edge starts OBJECT_MARGIN clear of the objects where they were
     observed, and from the park pose its whole transit does (C MuJoCo's mj_geomDistance)."""
-    from lmjx.actions import OBJECT_MARGIN
-    from lmjx.agreement import decision_states
+    from lmjx.evaluation.agreement import decision_states
+    from lmjx.planner.clearance import OBJECT_MARGIN
 
     m = load_map(plan_map)
     decisions = decision_states(robot, {"case2": m}, (1,), 1, 2, 16, first_seed=5)
@@ -702,8 +701,8 @@ def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map,
     import gzip
     import pickle
 
-    from lmjx.agreement import decision_states, load_decisions, save_decisions
     from lmjx.errors import ConfigError
+    from lmjx.evaluation.agreement import decision_states, load_decisions, save_decisions
 
     m = load_map(plan_map)
     one = decision_states(robot, {"case2": m}, (1,), 2, 1, 8, first_seed=5)
@@ -733,7 +732,7 @@ def test_the_agreement_tests_decisions_are_the_same_in_parallel(robot, plan_map,
 
 def begins_along(q: np.ndarray, way: np.ndarray) -> int:
     """How many of the joint targets q (an action's) lead along the polyline `way` to its end
-    (every one of them on it, to 1e-9 rad; the last equal to way[-1]): `lmjx.timing.retime`
+    (every one of them on it, to 1e-9 rad; the last equal to way[-1]): `lmjx.planner.timelaw.retime`
     changes when the arm reaches each point of a transit's path, not the path."""
     ends = np.nonzero(np.all(np.abs(q - way[-1]) <= 1e-12, axis=1))[0]
     assert len(ends), "the path's end is never reached"
@@ -751,8 +750,9 @@ def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     arm's clearance to the scene (C MuJoCo's mj_geomDistance, objects where the "real" world
     was observed after the push) never falls more than LEAVE_TOLERANCE below where it stood,
     and which ends RETREAT_SLACK outside every margin."""
-    from lmjx.actions import LEAVE_TOLERANCE, OBJECT_MARGIN, RETREAT_SLACK
-    from lmjx.planner import edges_over_target
+    from lmjx.planner.clearance import LEAVE_TOLERANCE, OBJECT_MARGIN
+    from lmjx.planner.edge_planner import edges_over_target
+    from lmjx.planner.escape import RETREAT_SLACK
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -781,7 +781,7 @@ def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     assert acts
     lead = tp.retreat(obs.robot_q, came_from)
     assert lead is not None
-    way = np.concatenate([obs.robot_q[None], lead])  # the retreat's path (lmjx.timing retimes it, not the path)
+    way = np.concatenate([obs.robot_q[None], lead])  # the retreat's path (retimed, not reshaped)
     for a in acts:
         k = begins_along(a.q, way)
         assert np.array_equal(a.q[:k], acts[0].q[:k])  # every transit begins the same way
@@ -810,8 +810,8 @@ def paired_decisions(
     there went from a tie to a loss, 12 wins to 3, p = 0.018; over 40 starts rescoring on and
     off both win 29 to 4.  At 15 one pair decided the test.)  Greedy simulates with its
     servo model (`PlannerConfig.servo`, "robot" by default since 2026-11-27)."""
-    from lmjx.planner import Planner
-    from lmjx.trial import planner_physics
+    from lmjx.evaluation.trial import planner_physics
+    from lmjx.planner.edge_planner import Planner
 
     m = load_map(small_map)
     transits = TransitPlanner(robot, m.failure)
@@ -865,7 +865,7 @@ def test_a_blocked_way_to_park_goes_around_the_objects(robot, plan_map):
     at the park pose and keeps its margin from every movable object at every control step,
     by C MuJoCo's mj_geomDistance; the table and the arm itself stay clear too (C MuJoCo's
     contacts)."""
-    from lmjx.actions import JAM_MARGIN, OBJECT_MARGIN
+    from lmjx.planner.clearance import JAM_MARGIN, OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -905,7 +905,7 @@ def _cube_between_two_starts(robot, plan_map):
     asserts that a path from q0 keeps OBJECT_MARGIN from the cube at every control step by C
     MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
     contacts) and moves no joint faster than the transits' speed."""
-    from lmjx.actions import OBJECT_MARGIN
+    from lmjx.planner.clearance import OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -942,7 +942,7 @@ def _cube_between_two_starts(robot, plan_map):
 
 def test_a_roadmap_transit_goes_around_what_blocks_the_straight_line(robot, plan_map):
     """Where a cube stands where the straight line between two edge starts passes halfway,
-    the roadmap (`lmjx.roadmap`, over the map's edge starts) finds a way from one to the
+    the roadmap (`lmjx.planner.roadmap`, over the map's edge starts) finds a way from one to the
     other that ends at the goal, keeps OBJECT_MARGIN from the cube at every control step by
     C MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
     contacts), and moves no joint faster than the transits' speed."""
@@ -962,8 +962,8 @@ def test_the_way_back_leads_out_where_the_roadmap_has_no_way(robot, plan_map):
     passes the same checks (C MuJoCo's clearance and contacts, the transits' speed).  The
     trail's nodes are its own states, RETREAT_STEP apart, from the latest nearest the arm
     backwards."""
-    from lmjx.actions import RETREAT_STEP, TRAIL_NODES
-    from lmjx.roadmap import Roadmap
+    from lmjx.planner.escape import RETREAT_STEP, TRAIL_NODES
+    from lmjx.planner.roadmap import Roadmap
 
     m, tp, q0, q1, check = _cube_between_two_starts(robot, plan_map)
     came = tp.roadmap(m.edges).transits(q1, q0[None])[0]  # how the arm came from q1 to q0
@@ -1104,7 +1104,7 @@ def test_a_wedged_arm_escapes_by_search(robot, monkeypatch):
     never comes nearer any object than it began or than JAM_MARGIN (whichever is lower;
     LEAVE_TOLERANCE), ends at least OBJECT_MARGIN clear of every object, touches neither the
     table nor itself, and keeps its locked joints and joint limits."""
-    import lmjx.actions as actions
+    import lmjx.planner.escape as escape
 
     q0, objects = np.array(WEDGE_Q), np.array(WEDGE_OBJECTS)
     failure = parse_failure("case1", robot)
@@ -1123,7 +1123,7 @@ def test_a_wedged_arm_escapes_by_search(robot, monkeypatch):
     assert path is not None
     # (it began 2.2 mm into obstacle2's box: contacts with the objects are their clearances' to judge)
     assert_escape_keeps_clear(robot, failure, scene, d, clearance, movable, q0, path, object_contacts=False)
-    monkeypatch.setattr(actions, "ESCAPE_BEAM", 1)  # the greedy walk
+    monkeypatch.setattr(escape, "ESCAPE_BEAM", 1)  # the greedy walk
     tp.forget()
     tp.set_scene(sc, objects)
     assert tp.escape(q0) is None
@@ -1143,7 +1143,7 @@ def test_options_estimate_what_actions_would_offer_before_transits(robot, plan_m
     """`TransitPlanner.options` with every edge sampled and checked is exactly the number of
     edges over the target that `actions` finds neither start-blocked nor unusable (its tally);
     a sample of them estimates it within four binomial standard errors."""
-    from lmjx.planner import edges_over_target
+    from lmjx.planner.edge_planner import edges_over_target
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -1169,7 +1169,9 @@ def test_greedy_stuck_takes_the_candidate_that_leaves_the_most_options(robot, pl
     """when_stuck="options": of the candidates that keep every object on the table, those
     with at least OPTIONS_NEAR of the most options qualify, and the best predicted of them is
     taken; the record keeps both figures.  With "best" a decision is unchanged."""
-    from lmjx.planner import OFF_TABLE_PENALTY, OPTIONS_NEAR, Planner, edges_over_target
+    from lmjx.planner.edge_planner import Planner, edges_over_target
+    from lmjx.planner.scoring import OFF_TABLE_PENALTY
+    from lmjx.types import OPTIONS_NEAR
 
     m = load_map(plan_map)
     setup = setup_trial(robot, m, 1, PlannerConfig(asm="greedy", when_stuck="options"), 3, tasks="hard")
@@ -1204,7 +1206,7 @@ def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(rob
     """A scene of up to EDGE_BOXES boxes (the tunnel: the target and three fixed boxes) is
     checked by the 4-box clearance program the edges use, not the MAX_BOXES one: the same
     clearances, to float32 rounding, for configurations spanning several chunks."""
-    from lmjx.actions import EDGE_BOXES, MAX_BOXES, _box_kernel, box_slots
+    from lmjx.planner.clearance import EDGE_BOXES, MAX_BOXES, box_kernel, box_slots
 
     assert box_slots(EDGE_BOXES) == EDGE_BOXES and box_slots(EDGE_BOXES + 1) == MAX_BOXES
     m = load_map(plan_map)
@@ -1214,7 +1216,7 @@ def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(rob
     assert len(tp.scene.names) == EDGE_BOXES
     qs = np.concatenate([m.edges.edge(e)["q"] for e in range(40)]).astype(np.float32)
     small = tp.box_clearance(qs)
-    big = _box_kernel(robot, tp.scene.padded(MAX_BOXES)).run(qs)["box_clearance"][:, :EDGE_BOXES]
+    big = box_kernel(robot, tp.scene.padded(MAX_BOXES)).run(qs)["box_clearance"][:, :EDGE_BOXES]
     assert len(qs) > 256 and small.shape == big.shape
     np.testing.assert_allclose(small, big, rtol=0, atol=1e-6)
 
@@ -1226,9 +1228,9 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
     angle only adds pairs; the planner's weighted score at least the path length, kept with
     the map."""
-    from lmjx.goalfield import GoalField
-    from lmjx.planner import table_bounds
-    from lmjx.pushfield import far_objects, push_counts, push_pairs
+    from lmjx.planner.goalfield import GoalField
+    from lmjx.planner.pushfield import far_objects, push_counts, push_pairs
+    from lmjx.planner.scoring import table_bounds
 
     m = load_map(plan_map)
     b, reach = m.edges, m.reach
@@ -1245,7 +1247,7 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     counts = push_counts(cells, reach)
     assert counts.shape == (ny, nx) and counts.sum() == len(cells) and counts.max() > 1
     # the planner's score with a push weight: every metre costs at least 1, more where few push
-    from lmjx.planner import _score_field
+    from lmjx.planner.scoring import _score_field
 
     weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
     assert weighted is _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))  # kept
@@ -1306,9 +1308,9 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     again and replaced; the cache off: no file."""
     import dataclasses
 
-    from lmjx import pushfield
-    from lmjx.goalfield import GoalField
-    from lmjx.planner import _score_field, table_bounds
+    from lmjx.planner import pushfield
+    from lmjx.planner.goalfield import GoalField
+    from lmjx.planner.scoring import _score_field, table_bounds
 
     monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path))
     m = load_map(plan_map)
@@ -1366,7 +1368,7 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
 def test_a_report_says_the_settings_its_trials_ran_with():
     """A report rewritten from merged runs (a config that does not know their settings) takes
     the settings from the trials' records: one line where they agree, one per set where not."""
-    from lmjx.evaluate import EvalConfig, _settings_lines
+    from lmjx.evaluation.evaluate import EvalConfig, _settings_lines
 
     config = EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=0.0))
     weighted = PlannerConfig(push_weight=1.0).settings()
@@ -1389,8 +1391,8 @@ def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
     goes on), and far away with a shorter budget (it ends at the budget)."""
     from dataclasses import replace
 
-    from lmjx.planner import Planner
-    from lmjx.scenarios import PaperTask, paper_variant
+    from lmjx.planner.edge_planner import Planner
+    from lmjx.sim.scenarios import PaperTask, paper_variant
 
     ct = benchmark_module("calibrate_tasks")
     m = load_map(plan_map, robot=robot)
@@ -1438,9 +1440,9 @@ def test_one_action_rate_executes_what_a_trial_executes(robot, plan_map):
     one action) for goals placed on that end and with it 5 mm inside a goal's edge."""
     from dataclasses import replace
 
-    from lmjx.evaluate import trial_seed
-    from lmjx.planner import Planner
-    from lmjx.scenarios import PaperTask, paper_variant
+    from lmjx.evaluation.evaluate import trial_seed
+    from lmjx.planner.edge_planner import Planner
+    from lmjx.sim.scenarios import PaperTask, paper_variant
 
     ct, oa = benchmark_module("calibrate_tasks"), benchmark_module("one_action_rate")
     m = load_map(plan_map, robot=robot)
@@ -1480,8 +1482,8 @@ def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     target to a micrometre, and playback (the default) does not."""
     from dataclasses import replace
 
-    from lmjx.bench_planner import candidate_actions
-    from lmjx.trial import make_simulator
+    from lmjx.bench.planner import candidate_actions
+    from lmjx.evaluation.trial import make_simulator
 
     _mf, sc, _scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, 6, 0, planner_scene=False)
     drawn = real_physics(robot, len(sc.movable), np.random.default_rng(0))

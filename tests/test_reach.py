@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lmjx.errors import ConfigError
-from lmjx.reach import NPM, PM, UNREACHABLE, ReachConfig, reach_map, smooth_labels
+from lmjx.reach.reachability import NPM, PM, UNREACHABLE, ReachConfig, reach_map, smooth_labels
 
 COARSE = ReachConfig(cell=0.05)
 

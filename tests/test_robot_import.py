@@ -15,9 +15,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.capsule_fit import capsule_along, coverage, enclosing_circle, fit_capsules, union_volume
-from lmjx.robot import check_robot
-from lmjx.robot_import import ImportOptions, SourceError, arm_chain, import_robot, load_source
+from lmjx.model.capsule_fit import capsule_along, coverage, enclosing_circle, fit_capsules, union_volume
+from lmjx.model.import_source import SourceError, arm_chain, load_source
+from lmjx.model.robot import check_robot
+from lmjx.model.robot_import import ImportOptions, import_robot
 
 pybullet_data = pytest.importorskip("pybullet_data")
 DATA = Path(pybullet_data.getDataPath())
@@ -231,8 +232,8 @@ def test_gripper_and_presets_on_a_bare_arm(tmp_path):
     """--gripper 2f85: the UR5e's stand-in, mounted on the flange axis where the last link's
     geometry ends (its box's top, 0.05 m), the tcp 0.145 m further; --preset: the loader's
     failure presets.  Bad presets and --tcp beside --gripper are refused in one line."""
-    from lmjx.robot import load_robot
-    from lmjx.robot_import import GRIPPERS
+    from lmjx.model.import_write import GRIPPERS
+    from lmjx.model.robot import load_robot
 
     src = tmp_path / "t.urdf"
     body = _link("b") + _link("c") + _joint("j1", "revolute", "a", "b") + _joint("j2", "revolute", "b", "c")

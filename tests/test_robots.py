@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from conftest import cli
 
-from lmjx.atlas import AtlasConfig, entries, expected_maps
 from lmjx.errors import ConfigError, FailureSpecError, MapFileError
-from lmjx.failure import parse_failure
-from lmjx.robot import ROBOTS, RobotError, check_robot, load_robot, resolve_robot
-from lmjx.scenarios import PAPER_BUDGET, PAPER_TASKS, in_goal, sample_layout, scenario
+from lmjx.model.failure import parse_failure
+from lmjx.model.robot import ROBOTS, RobotError, check_robot, load_robot, resolve_robot
+from lmjx.reach.atlas import AtlasConfig, entries, expected_maps
+from lmjx.sim.scenarios import PAPER_BUDGET, PAPER_TASKS, in_goal, sample_layout, scenario
 
 UR5E = ROBOTS["ur5e"]
 
@@ -129,9 +129,11 @@ def test_ur5e_model_is_urs():
 def test_ur5e_ready_pose_and_scene_hold_still():
     """The UR5e parks collision-free, and the planner's scene (6 joint servos) holds it there
     with every object of scenario 3 at rest."""
-    from lmjx.actions import Action, controls, park_pose
-    from lmjx.scenarios import sample_layout
-    from lmjx.scene import build_scene, object_qpos, read_objects, set_state
+    from lmjx.planner.clearance import park_pose
+    from lmjx.sim.controls import controls
+    from lmjx.sim.scenarios import sample_layout
+    from lmjx.sim.scene import build_scene, object_qpos, read_objects, set_state
+    from lmjx.types import Action
 
     ur = load_robot("ur5e")
     q = park_pose(ur, parse_failure("case2", ur))
@@ -196,7 +198,8 @@ def test_atlas_of_the_ur5e_has_675_maps():
 
 def test_map_files_name_their_robot(table1_ur5e, tmp_path):
     """A map records its robot; load_map takes the robot it names and refuses another."""
-    from lmjx.mapfile import load_map, write_reach_map
+    from lmjx.mapfile.read import load_map
+    from lmjx.mapfile.write import write_reach_map
 
     ur = load_robot("ur5e")
     res = table1_ur5e["case2"]
@@ -230,7 +233,7 @@ def test_user_robot_by_path_scales_its_scenarios(tmp_path):
     big = load_robot(str(path))
     assert big.key == str(path) and big.maps_dir == "maps/big"
     assert 1.2 < big.profile.task_scale < 1.5
-    from lmjx.reach import reach_config
+    from lmjx.reach.reachability import reach_config
 
     cfg = reach_config(big)
     assert cfg.x_range[1] == pytest.approx(1.1 * big.profile.task_scale)

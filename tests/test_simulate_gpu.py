@@ -5,7 +5,7 @@ without it they are skipped (CI installs no GPU package); with it and no CUDA GP
 on Warp's CPU device on short actions; with a CUDA GPU they run there on whole actions, and
 the agreement over 200 Greedy decisions (the acceptance test of the GPU simulator) runs too,
 out of sample: on maps and decision seeds chosen before it was first run and never used
-before (`lmjx.agreement.MAP_SEED`, `FIRST_SEED`; benchmarks/RESULTS.md).
+before (`lmjx.evaluation.agreement.MAP_SEED`, `FIRST_SEED`; benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -19,13 +19,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.actions import park_pose
-from lmjx.agreement import MAP_SEED  # chosen before the agreement test's first run
-from lmjx.failure import parse_failure
-from lmjx.scenarios import sample_layout, scenario
-from lmjx.scene import build_scene, object_qpos, set_state
-from lmjx.simulate import CpuSimulator
-from lmjx.simulate_gpu import GpuSimConfig, GpuSimulator, warp_problem
+from lmjx.evaluation.agreement import MAP_SEED  # chosen before the agreement test's first run
+from lmjx.model.failure import parse_failure
+from lmjx.planner.clearance import park_pose
+from lmjx.sim.cpu import CpuSimulator
+from lmjx.sim.gpu import GpuSimConfig, GpuSimulator, warp_problem
+from lmjx.sim.scenarios import sample_layout, scenario
+from lmjx.sim.scene import build_scene, object_qpos, set_state
 
 
 def _contacts(m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
@@ -125,7 +125,7 @@ def candidates(robot, small_map):
     table and the arm only (these tests compare simulators on the same actions, offered by
     the planner or not: this small map offers none in the hard scenarios); whole actions on a
     GPU, their last 0.2 s on Warp's CPU device, which is far slower."""
-    from lmjx.bench_planner import candidate_actions
+    from lmjx.bench.planner import candidate_actions
 
     n = 64 if CUDA else 4
     _mf, sc, scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, n, 0, planner_scene=False)
@@ -139,7 +139,7 @@ def candidates(robot, small_map):
 def test_gpu_simulator_matches_c_mujoco(robot, candidates, servo):
     """Both servo models (`PlannerConfig.servo`): "robot" limits each joint's torque
     (`jnt_actfrcrange`) and tracks with the robot's softer gains."""
-    from lmjx.trial import planner_physics
+    from lmjx.evaluation.trial import planner_physics
 
     sc, scene, objects, q0, acts = candidates
     physics = planner_physics(robot, servo)
@@ -192,15 +192,16 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     before the first run (the in-sample figures were 94.4 % and 0.8 µm, H100, 2026-11-22).
     Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5 built with --seed 2026) or built
     here.  LMJX_TEST_REPORT: write the figures there (JSON)."""
-    from lmjx.agreement import out_of_sample
-    from lmjx.evaluate import load_maps
-    from lmjx.trial import make_simulator
+    from lmjx.evaluation.agreement import out_of_sample
+    from lmjx.evaluation.evaluate import load_maps
+    from lmjx.evaluation.trial import make_simulator
 
     folder = Path(os.environ.get("LMJX_TEST_MAPS", tmp_path))
     if "LMJX_TEST_MAPS" not in os.environ:
-        from lmjx.bundle import BundleConfig, build_bundle
-        from lmjx.mapfile import write_map
-        from lmjx.reach import ReachConfig, reach_map
+        from lmjx.edges.bundle import BundleConfig
+        from lmjx.edges.chunk import build_bundle
+        from lmjx.mapfile.write import write_map
+        from lmjx.reach.reachability import ReachConfig, reach_map
 
         for f in ("case1", "case2"):
             reach = reach_map(f, ReachConfig(seed=MAP_SEED), robot=robot)

@@ -1,4 +1,4 @@
-"""lmjx.threadprof: the sampler attributes each thread's time to where it stands, grouped by
+"""lmjx.runtime.threadprof: the sampler attributes each thread's time to where it stands, grouped by
 thread name (a sleeping thread is found in the function that sleeps)."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import threading
 import time
 
-from lmjx.threadprof import ThreadSampler, _group
+from lmjx.runtime.threadprof import ThreadSampler, _group
 
 
 def _wait_here(seconds: float) -> None:

@@ -1,4 +1,4 @@
-"""The transits' time law (`lmjx.timing`): against its speed law integrated numerically, and
+"""The transits' time law (`lmjx.planner.timelaw`): against its speed law integrated numerically, and
 executed by the "real" world's servos (C MuJoCo) around a corner, where the constant speed
 it replaced overshoots."""
 
@@ -10,11 +10,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.actions import CONTROL_DT, Action, TransitPlanner, transit_velocities
-from lmjx.executor import SimulatedRealWorld
-from lmjx.failure import parse_failure
-from lmjx.scenarios import sample_layout, scenario
-from lmjx.timing import RAMP, corners, ramp_time, ramped, retime
+from lmjx.model.failure import parse_failure
+from lmjx.planner.timelaw import RAMP, corners, ramp_time, ramped, retime
+from lmjx.planner.transit import TransitPlanner, transit_velocities
+from lmjx.sim.realworld import SimulatedRealWorld
+from lmjx.sim.scenarios import sample_layout, scenario
+from lmjx.types import CONTROL_DT, Action
 
 
 def integrated_law(t: float, n: int, rise: bool, fall: bool, fine: int = 200_000) -> np.ndarray:

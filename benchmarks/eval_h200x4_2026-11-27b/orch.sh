@@ -29,7 +29,7 @@ RUNS="$(cat .evp4/hard.txt)" LMJX_CORES=1 bash benchmarks/eval_background.sh lau
 while [ "$(ls $L/ca*.rc 2> /dev/null | wc -l)" -lt 180 ]; do sleep 5; done
 log "calibration ended"; grep -L "rc 0" $L/ca*.rc
 JAX_PLATFORMS=cpu python3 benchmarks/calibrate_tasks.py --from-runs $L/ca*/calib.json --out $L/calibration.json --apply > $L/cal_apply.log 2>&1
-tail -n 25 $L/cal_apply.log; cp lmjx/scenarios.py $L/scenarios_applied.py
+tail -n 25 $L/cal_apply.log; cp lmjx/sim/scenarios.py $L/scenarios_applied.py
 warm paper; log "paper counts warm"
 RUNS="$(cat .evp4/paper.txt)" LMJX_CORES=1 bash benchmarks/eval_background.sh launch | tail -n 1
 log "paper runs launched"

@@ -21,11 +21,13 @@ import sys
 
 import numpy as np
 
-from lmjx.actions import ESCAPE_STEP, JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN, after_executing
-from lmjx.mapfile import load_map
-from lmjx.planner import PlannerConfig
-from lmjx.robot import load_robot
-from lmjx.trial import make_simulator, setup_trial
+from lmjx.evaluation.trial import make_simulator, setup_trial
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import load_robot
+from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN
+from lmjx.planner.escape import ESCAPE_STEP
+from lmjx.planner.transit import after_executing
+from lmjx.types import PlannerConfig
 
 EDGE, SEED, SCENARIO = 12990, 1005, 1
 

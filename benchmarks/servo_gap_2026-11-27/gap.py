@@ -2,7 +2,7 @@
 prediction?  (The sixteenth session's measurement before choosing a lever:
 benchmarks/evaluation_plan_2026-11-28.md.)
 
-Decision states of one hard-set scenario (`lmjx.agreement.decision_states`: a trial's start
+Decision states of one hard-set scenario (`lmjx.evaluation.agreement.decision_states`: a trial's start
 and the states after one and two random actions, 16 candidates each), each candidate
 simulated with C MuJoCo from the observed state with the planner's physics and with one of
 the "real" world's differences alone (its servos; its objects' frictions and masses; its
@@ -21,14 +21,14 @@ import time
 
 import numpy as np
 
-from lmjx.agreement import decision_states
-from lmjx.executor import real_physics
-from lmjx.mapfile import load_map
-from lmjx.robot import as_robot
-from lmjx.scenarios import scenario
-from lmjx.scene import Physics, build_scene
-from lmjx.simulate import CpuSimulator
-from lmjx.trial import planner_physics
+from lmjx.evaluation.agreement import decision_states
+from lmjx.evaluation.trial import planner_physics
+from lmjx.mapfile.read import load_map
+from lmjx.model.robot import as_robot
+from lmjx.sim.cpu import CpuSimulator
+from lmjx.sim.realworld import real_physics
+from lmjx.sim.scenarios import scenario
+from lmjx.sim.scene import Physics, build_scene
 
 
 def target_ends(robot, sc, physics: Physics, d) -> np.ndarray:

@@ -15,9 +15,9 @@ import os
 import sys
 from collections.abc import Sequence
 
-from .. import __version__
-from . import atlas, bench, buildmap, evaluate, info, locksearch, plan, reach, robots, scenarios
-from .common import (
+from lmjx import __version__
+from lmjx.cli import atlas, bench, buildmap, evaluate, info, locksearch, plan, reach, robots, scenarios
+from lmjx.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_USAGE,
     _leave_interrupted,
@@ -95,20 +95,20 @@ def _gl_missing() -> str | None:
 
 
 def _cache(args: argparse.Namespace) -> None:
-    from ..cache import configure
+    from lmjx.runtime.cache import configure
 
     configure(args.cache_dir, warn=lambda m: warn(args.command, m))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from ..hostmem import return_large_buffers
+    from lmjx.runtime.hostmem import return_large_buffers
 
     return_large_buffers()
     parser = build_parser()
     args = parser.parse_args(argv)
     import signal
 
-    from ..errors import LmjxError
+    from lmjx.errors import LmjxError
 
     if threading_main():
         signal.signal(signal.SIGINT, _on_sigint)

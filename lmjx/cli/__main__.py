@@ -2,6 +2,6 @@
 
 import sys
 
-from . import main
+from lmjx.cli import main
 
 sys.exit(main())

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .common import (
+from lmjx.cli.common import (
     HDF5_SUFFIXES,
     _add_device,
     _add_distributed,
@@ -60,10 +60,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_atlas(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
-    if args.compare:  # several arms' atlases side by side (lmjx/atlas_compare.py)
-        from ..atlas_compare import compare_report
+    if args.compare:  # several arms' atlases side by side (lmjx/reach/atlas_compare.py)
+        from lmjx.reach.atlas_compare import compare_report
 
         _emit(args, *compare_report(args.compare, args.summary))
         return 0
@@ -79,7 +79,7 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     _init_distributed(args)
     import jax
 
-    from ..atlas import AtlasConfig, build_atlas, expected_maps
+    from lmjx.reach.atlas import AtlasConfig, build_atlas, expected_maps
 
     robot = _load_robot(args)
     out = args.out or f"{robot.maps_dir}/atlas.h5"
@@ -88,7 +88,7 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     config.validate(robot)
     lead = jax.process_index() == 0
     if args.summary and lead:
-        from ..fileio import check_writable
+        from lmjx.runtime.fileio import check_writable
 
         check_writable(args.summary, "summary")
     try:
@@ -105,7 +105,7 @@ def cmd_atlas(args: argparse.Namespace) -> int:
     if args.summary:
         from pathlib import Path
 
-        from ..atlas_report import write_summary
+        from lmjx.reach.atlas_report import write_summary
 
         md = Path(args.summary)
         write_summary(st, md, md.with_suffix(".png"))

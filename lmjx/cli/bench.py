@@ -1,12 +1,12 @@
 """`lmjx bench`: lmjx's kernels timed against the baselines (PyBullet, pytorch_kinematics,
-serial C MuJoCo); the work is in lmjx/bench.py."""
+serial C MuJoCo); the work is in lmjx/bench/bench.py."""
 
 from __future__ import annotations
 
 import argparse
 
-from .common import _add_device, _add_robot, _positive_int, check_suffix
-from .plan import _add_sim
+from lmjx.cli.common import _add_device, _add_robot, _positive_int, check_suffix
+from lmjx.cli.plan import _add_sim
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -53,6 +53,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.out:
         check_suffix(args.out, "--out", (".json",), "the results are written as JSON")
-    from ..bench import run_bench
+    from lmjx.bench.bench import run_bench
 
     return run_bench(args)

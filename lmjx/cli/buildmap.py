@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .common import (
+from lmjx.cli.common import (
     HDF5_SUFFIXES,
     _add_device,
     _add_distributed,
@@ -64,9 +64,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_build_map(args: argparse.Namespace) -> int:
-    from ..api import build_map, default_map_path
-    from ..edgestream import partial_path
-    from ..failure import parse_failure
+    from lmjx.api import build_map, default_map_path
+    from lmjx.edges.stream import partial_path
+    from lmjx.model.failure import parse_failure
 
     if args.out:
         check_suffix(args.out, "--out", HDF5_SUFFIXES, "the map is written as HDF5")

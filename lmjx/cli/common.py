@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 if TYPE_CHECKING:
-    from ..reach import ReachConfig
-    from ..robot import Robot
+    from lmjx.model.robot import Robot
+    from lmjx.reach.reachability import ReachConfig
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -86,7 +86,7 @@ def _add_robot(p: argparse.ArgumentParser, from_map: bool = False) -> None:
 
 def _load_robot(args: argparse.Namespace) -> Robot:
     """The robot --robot names (the Panda when it is not given)."""
-    from ..robot import load_robot
+    from lmjx.model.robot import load_robot
 
     return load_robot(args.robot)
 
@@ -134,10 +134,10 @@ def _init_distributed(args: argparse.Namespace) -> None:
     """jax.distributed for --coordinator/--num-processes, before JAX starts."""
     if args.coordinator or args.num_processes > 1:
         if not args.coordinator:
-            from ..errors import ConfigError
+            from lmjx.errors import ConfigError
 
             raise ConfigError("--num-processes > 1 needs --coordinator HOST:PORT")
-        from ..sharding import init_distributed
+        from lmjx.runtime.sharding import init_distributed
 
         init_distributed(args.coordinator, args.num_processes, args.process_id)
 
@@ -145,7 +145,7 @@ def _init_distributed(args: argparse.Namespace) -> None:
 def _set_device(choice: str, probe: bool = True) -> None:
     """Pin JAX to a platform before it initializes; fail in one line if none is there.
     Without `probe` the backend is left uninitialized (jax.distributed must come first)."""
-    from ..errors import LmjxError
+    from lmjx.errors import LmjxError
 
     before = os.environ.get("JAX_PLATFORMS")
     os.environ["JAX_PLATFORMS"] = "cpu" if choice == "cpu" else "cuda"
@@ -169,7 +169,7 @@ def _set_device(choice: str, probe: bool = True) -> None:
 
 
 def _reach_config(args: argparse.Namespace, robot: Robot) -> ReachConfig:
-    from ..reach import reach_config
+    from lmjx.reach.reachability import reach_config
 
     ips = tuple(s.strip() for s in args.ips.split(",") if s.strip()) if args.ips is not None else robot.default_ips
     return reach_config(
@@ -185,7 +185,7 @@ def _reach_config(args: argparse.Namespace, robot: Robot) -> ReachConfig:
 
 def figure_format(path: str | Path, option: str) -> str:
     """The image format a figure option's file name asks for (its extension), or a one-line refusal."""
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
     ext = Path(path).suffix.lower().lstrip(".")
     if ext not in FIGURE_FORMATS:
@@ -199,7 +199,7 @@ def figure_format(path: str | Path, option: str) -> str:
 
 def check_suffix(path: str | Path, option: str, suffixes: Sequence[str], what: str) -> None:
     """Refuse an output file whose extension names another format than the one written."""
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
     if Path(path).is_dir():
         return  # the path check says what is wrong with that

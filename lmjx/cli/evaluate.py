@@ -7,8 +7,8 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from .common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
-from .plan import _add_planner_options, _planner_config, _resolve_sim
+from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
+from lmjx.cli.plan import _add_planner_options, _planner_config, _resolve_sim
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -46,7 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _split(text: str, cast: Callable = str) -> tuple:
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
     try:
         return tuple(cast(x.strip()) for x in text.split(",") if x.strip())
@@ -55,7 +55,7 @@ def _split(text: str, cast: Callable = str) -> tuple:
 
 
 def _part(text: str) -> tuple[int, int]:
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
     try:
         k, n = (int(x) for x in text.split("/"))
@@ -68,9 +68,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from ..errors import ConfigError
-    from ..evaluate import EvalConfig, evaluate, load_maps, plots, report_markdown, simulator_description, summarize
-    from ..fileio import check_writable, write_text_atomic
+    from lmjx.errors import ConfigError
+    from lmjx.evaluation.evaluate import (
+        EvalConfig,
+        evaluate,
+        load_maps,
+        plots,
+        report_markdown,
+        simulator_description,
+        summarize,
+    )
+    from lmjx.runtime.fileio import check_writable, write_text_atomic
 
     robot = _load_robot(args)
     failures = _split(args.failures) if args.failures else tuple(robot.profile.presets)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import _add_robot, _emit, _load_robot
+from lmjx.cli.common import _add_robot, _emit, _load_robot
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from ..mapfile import load_map
+    from lmjx.mapfile.read import load_map
 
     robot = _load_robot(args) if args.robot else None  # None: the robot the map names
     m = load_map(args.path, robot, lazy=True)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from .common import (
+from lmjx.cli.common import (
     _add_device,
     _add_reach_options,
     _add_robot,
@@ -52,7 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_match(text: str) -> tuple[float, float]:
-    from ..errors import ConfigError
+    from lmjx.errors import ConfigError
 
     try:
         match = tuple(float(v) for v in text.split(","))
@@ -64,10 +64,10 @@ def _parse_match(text: str) -> tuple[float, float]:
 
 
 def cmd_lock_search(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError
-    from ..failure import parse_failure
-    from ..fileio import check_writable, write_text_atomic
-    from ..locksearch import lock_grid, lock_search, parse_joints
+    from lmjx.errors import ConfigError
+    from lmjx.model.failure import parse_failure
+    from lmjx.reach.locksearch import lock_grid, lock_search, parse_joints
+    from lmjx.runtime.fileio import check_writable, write_text_atomic
 
     robot = _load_robot(args)
     joints = parse_joints(args.joints, robot)
@@ -110,7 +110,7 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
     extra = []
     angles_for_plot = angles
     if match is not None:
-        from ..reach import reach_map
+        from lmjx.reach.reachability import reach_map
 
         ref = reach_map(parse_failure("none", robot), config, robot=robot).areas()
         m_angles, m_pm, m_npm = res.closest(match[0], match[1], ref)
@@ -124,7 +124,7 @@ def cmd_lock_search(args: argparse.Namespace) -> int:
     if args.out:
         write_text_atomic(args.out, json.dumps(summary, indent=2) + "\n")
     if args.png:
-        from ..plots import lock_search_plot
+        from lmjx.reach.plots import lock_search_plot
 
         lock_search_plot(
             grids[0], grids[1], res.pm, res.npm_pm, (f"J{joints[0]}", f"J{joints[1]}"), angles_for_plot, args.png, fmt

@@ -7,11 +7,11 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from ..scenarios import PAPER_BUDGET, Scenario
-from .common import _add_device, _add_robot, _emit, _load_robot, _nonnegative_int, _positive_int
+from lmjx.cli.common import _add_device, _add_robot, _emit, _load_robot, _nonnegative_int, _positive_int
+from lmjx.sim.scenarios import PAPER_BUDGET, Scenario
 
 if TYPE_CHECKING:
-    from ..planner import PlannerConfig
+    from lmjx.types import PlannerConfig
 
 
 def _add_sim(p: argparse.ArgumentParser) -> None:
@@ -126,7 +126,7 @@ def _nonnegative_float(text: str) -> float:
 
 def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
     """The planner's simulator for --sim, announced on stderr."""
-    from ..trial import resolve_simulator
+    from lmjx.evaluation.trial import resolve_simulator
 
     name, why = resolve_simulator(args.sim)
     print(f"lmjx {args.command}: simulator {name} ({why})", file=sys.stderr)
@@ -134,7 +134,7 @@ def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
 
 
 def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
-    from ..api import planner_config
+    from lmjx.api import planner_config
 
     return planner_config(
         asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start,
@@ -167,7 +167,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from ..api import plan_task
+    from lmjx.api import plan_task
 
     r = plan_task(
         args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,

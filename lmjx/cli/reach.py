@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import (
+from lmjx.cli.common import (
     HDF5_SUFFIXES,
     _add_device,
     _add_reach_options,
@@ -43,8 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_reach(args: argparse.Namespace) -> int:
-    from ..failure import parse_failure
-    from ..fileio import check_writable
+    from lmjx.model.failure import parse_failure
+    from lmjx.runtime.fileio import check_writable
 
     robot = _load_robot(args)
     failure = parse_failure(args.failure, robot)
@@ -56,15 +56,15 @@ def cmd_reach(args: argparse.Namespace) -> int:
     if args.png:
         fmt = figure_format(args.png, "--png")
         check_writable(args.png, "heatmap")
-    from ..reach import reach_map
+    from lmjx.reach.reachability import reach_map
 
     result = reach_map(failure, config, robot=robot, progress=True)
     if args.out:
-        from ..mapfile import write_reach_map
+        from lmjx.mapfile.write import write_reach_map
 
         write_reach_map(args.out, result, robot)
     if args.png:
-        from ..plots import reach_heatmap
+        from lmjx.reach.plots import reach_heatmap
 
         reach_heatmap(result, args.png, fmt)
     s = result.summary()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import EXIT_USAGE, _emit
+from lmjx.cli.common import EXIT_USAGE, _emit
 
 
 def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -16,7 +16,7 @@ def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "capsules, its limits are taken from the source (a missing one is named, with the flag that supplies "
         "it), the flange, tcp and interaction-point sites are placed, and the table and actuators added; the "
         "result passes lmjx robot check.  How tight the capsules are (vertices covered, volume over the "
-        "geometry's convex hulls) is printed and kept in the file's header.  Method: lmjx/robot_import.py.",
+        "geometry's convex hulls) is printed and kept in the file's header.  Method: lmjx/model/robot_import.py.",
     )
     c.add_argument("src", help="the URDF (.urdf) or MJCF (.xml); package:// mesh paths resolve from its folder up")
     c.add_argument("--out", required=True, help="the MJCF to write (.xml)")
@@ -45,10 +45,10 @@ def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_robot_import(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..errors import ConfigError
-    from ..fileio import check_writable
-    from ..robot import check_robot
-    from ..robot_import import ImportOptions, command_line, import_robot
+    from lmjx.errors import ConfigError
+    from lmjx.model.robot import check_robot
+    from lmjx.model.robot_import import ImportOptions, command_line, import_robot
+    from lmjx.runtime.fileio import check_writable
 
     out = Path(args.out)
     if out.suffix.lower() != ".xml":

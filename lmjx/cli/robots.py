@@ -7,8 +7,8 @@ import argparse
 import json
 import sys
 
-from . import robot_import
-from .common import EXIT_USAGE, _emit, _Parser
+from lmjx.cli import robot_import
+from lmjx.cli.common import EXIT_USAGE, _emit, _Parser
 
 
 def add_parser(sub: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> list[argparse.ArgumentParser]
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
-    from ..robot import ROBOTS, load_robot
+    from lmjx.model.robot import ROBOTS, load_robot
 
     rows = []
     for name in ROBOTS:
@@ -74,7 +74,7 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 
 def cmd_robot_check(args: argparse.Namespace) -> int:
-    from ..robot import check_robot, load_robot, resolve_robot
+    from lmjx.model.robot import check_robot, load_robot, resolve_robot
 
     key, path = resolve_robot(args.path)
     problems = check_robot(path)

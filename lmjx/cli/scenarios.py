@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import _add_robot, _load_robot
+from lmjx.cli.common import _add_robot, _load_robot
 
 # Set by `lmjx.cli.main` when MUJOCO_GL named an OpenGL that is not installed (and was unset).
 gl_note: str | None = None
@@ -34,12 +34,12 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from ..actions import park_pose
-    from ..failure import parse_failure
-    from ..fileio import check_writable
-    from ..render import gl_problem
-    from ..scenario_figure import scenario_picture
-    from ..scenarios import SCENARIOS, sample_layout, scenario
+    from lmjx.model.failure import parse_failure
+    from lmjx.planner.clearance import park_pose
+    from lmjx.runtime.fileio import check_writable
+    from lmjx.sim.figure import scenario_picture
+    from lmjx.sim.render import gl_problem
+    from lmjx.sim.scenarios import SCENARIOS, sample_layout, scenario
 
     out = Path(args.out)
     check_writable(out / "scenario1.png", "pictures")

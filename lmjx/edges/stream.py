@@ -1,0 +1,413 @@
+"""Maps of any size: `lmjx build-map` in bounded memory, streamed to HDF5, resumable.
+
+The work, for a map `<out>`:
+  1. preflight: the output's size and the time it will take, estimated from measured rates
+     (`RATES`); a file system without the room for it stops the build before it starts,
+     and a build of more than a day needs `yes=True` (`--yes`);
+  2. the Reach-Ability map, kept in `<out>.partial/reach.h5`;
+  3. the edges in chunks [a, b) of the sampling order: host threads per device
+     (`CHUNK_THREADS`) each take whole chunks, drawing, solving and rolling them out on their
+     device (while one's work runs there, the others prepare or collect theirs), with a
+     chunk more per device queued on several devices; in edge order, packers pack each chunk's
+     valid edges with their spatial-index entries (`bundle.EdgeChunk`) and save them to
+     `<out>.partial/edges-<a>-<b>.chunk` (`chunkfile`), and a process of its own appends
+     them to the map being written in the partial folder (`mapwriter`);
+  4. at the end, in that process, the spatial index (sorted cell range by cell range,
+     from the saved chunks); then the map is renamed to `<out>` and the partial folder
+     removed.
+Memory stays bounded whatever the number of edges: a few chunks per device in flight (so it
+grows with the devices: 7 GB on one H200, 14 GB on two for case 2), a few packing units per
+device, a few chunks read ahead by the writing process, one index range at the end.
+Disk: the partial chunks and the map side by side.
+
+Resumable: killed at any point (kill -9 included), the same command starts again from what
+`<out>.partial` holds: saved chunks are kept (and read back into the map in their turn),
+missing ones computed; a build with other parameters refuses to touch it.  Ctrl-C leaves
+nothing at `<out>`.  The chunk size is not part of the result: edges are drawn from
+counter-based streams (`bundle.edge_uniforms`), so the same seed gives the same datasets for
+any chunking and any number of devices or processes.
+
+Several devices of one process: each runs whole chunks with its own programs and threads,
+so the host work of preparing and collecting launches grows with the devices too.  Several
+hosts: `jax.distributed` (`sharding.init_distributed`), every launch split over all devices
+(`sharding`), every process computes its share, process 0 reads and writes the files and
+tells the others which chunks are left.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import shutil
+import sys
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lmjx import __version__
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.chunk import chunk_ranges
+from lmjx.edges.chunkfile import saved_chunks
+from lmjx.edges.index import capsule_ends_kernel
+from lmjx.edges.mapwriter import MapWriter
+from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts
+from lmjx.errors import ConfigError, OutputPathError
+from lmjx.mapfile.read import load_map
+from lmjx.mapfile.write import write_reach_map
+from lmjx.model.failure import Failure
+from lmjx.model.robot import Robot
+from lmjx.reach.reachability import ReachConfig, ReachResult, reach_map
+from lmjx.runtime import threadprof
+from lmjx.runtime.batching import device_description
+from lmjx.runtime.cores import usable_cores
+from lmjx.runtime.fileio import check_writable
+from lmjx.runtime.progress import Progress
+
+# Measured rates for the preflight (benchmarks/RESULTS.md): edges per second after
+# compilation, per accelerator or per CPU core, and what the files take per sampled edge
+# (case 2: a quarter of the sampled edges are kept, 51 states each).
+RATES = {"gpu": 60_000.0, "cpu_core": 170.0}
+COMPILE_SECONDS = {"gpu": 40.0, "cpu": 60.0}
+MAP_BYTES_PER_EDGE = 620.0  # the finished map
+PARTIAL_BYTES_PER_EDGE = 900.0  # the chunks in <out>.partial (raw arrays; case 2: about 885)
+DAY = 86_400.0
+
+
+@dataclass
+class Preflight:
+    edges: int
+    map_bytes: float
+    disk_bytes: float  # partial chunks + the map, at the end of the build
+    seconds: float
+    free_bytes: int
+    devices: int
+    basis: str
+
+    def lines(self) -> list[str]:
+        return [
+            f"preflight: {self.edges:,} edges -> a map of about {_size(self.map_bytes)} "
+            f"({_size(self.disk_bytes)} of disk while it is built; {_size(self.free_bytes)} free), "
+            f"about {_duration(self.seconds)} ({self.basis})"
+        ]
+
+
+def _size(b: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if b < 1000 or unit == "TB":
+            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
+        b /= 1000
+    return f"{b:.1f} TB"
+
+
+def _duration(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 2 * 3600:
+        return f"{s / 60:.0f} min"
+    if s < 2 * DAY:
+        return f"{s / 3600:.1f} h"
+    return f"{s / DAY:.1f} days"
+
+
+def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
+    """Estimated size and time of a build of n edges (before any work)."""
+    gpu = platform != "cpu"
+    cores = usable_cores()
+    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * cores
+    seconds = n / rate + COMPILE_SECONDS["gpu" if gpu else "cpu"]
+    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {cores}"
+    basis = f"{rate:,.0f} edges/s, from rates measured on {where}"
+    parent = out.parent if str(out.parent) else Path(".")
+    return Preflight(
+        n,
+        n * MAP_BYTES_PER_EDGE,
+        n * (MAP_BYTES_PER_EDGE + PARTIAL_BYTES_PER_EDGE),
+        seconds,
+        shutil.disk_usage(parent).free,
+        devices,
+        basis,
+    )
+
+
+def partial_path(out: str | Path) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def _plan(robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: BundleConfig) -> dict:
+    """What a partial build holds (a resume must match it)."""
+    reach = {k: v for k, v in asdict(reach_cfg).items() if k not in ("strategy", "chunk", "traced_locks")}
+    return json.loads(
+        json.dumps(
+            {
+                "lmjx_version": __version__,
+                "robot_model_hash": robot.model_hash,
+                "failure": failure.spec,
+                "locked": [list(x) for x in failure.locked],
+                "reach": reach,
+                "edges": config.content(),
+                "n": config.n_edges(),
+            },
+            default=list,
+        )
+    )
+
+
+def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple[int, int]]:
+    """Ranges of [0, n) not covered by `done` (disjoint, sorted), cut into chunks of `size`."""
+    todo, at = [], 0
+    for a, b in done:
+        if a < at:
+            raise ConfigError(f"the partial build holds overlapping chunks ({a}-{b}); remove the .partial folder")
+        todo += chunk_ranges(a, size, at) if a > at else []
+        at = b
+    return todo + chunk_ranges(n, size, at)
+
+
+# The interpreter's thread switch interval during a build.  Python's default, 5 ms, lets a
+# thread back from a C call that released the interpreter lock (a copy, a file write, a
+# device wait) wait up to 5 ms for it while a dozen others run Python code; measured on 2
+# H200s (benchmarks/RESULTS.md, issue 10): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
+# 0.5 ms; one GPU's unchanged.
+SWITCH_INTERVAL = 0.0005
+# Chunk threads per device in one process, and chunks per device submitted beyond them
+# (queued, or done and not yet handed over), for one device and for several: while one thread's chunk
+# runs on its device, the others draw, copy and place theirs.  Measured on 2 H200s
+# (benchmarks/RESULTS.md, issue 10), 5M edges after compilation: 2 GPUs 10.3-10.5 s with
+# (2, 0), 8.7 s with (3, 1); 1 GPU 17.1-17.7 s with (2, 0), 15.1 s with 3 threads, but then
+# 8.5 GB of host memory, over the 8 GB a one-GPU 5M-edge build keeps to.
+CHUNK_THREADS = {"one": (2, 0), "several": (3, 1)}  # (threads, ahead)
+
+
+def build_map(
+    out: str | Path,
+    failure: Failure,
+    reach_cfg: ReachConfig,
+    config: BundleConfig,
+    robot: Robot,
+    progress: bool = True,
+    sharded: bool = True,
+    yes: bool = False,
+    say=print,
+) -> dict:
+    """Build (or finish) the map file `out`: reach map + edge bundle, streamed.  Returns a
+    summary (for the command line).  The interpreter's switch interval is at most
+    `SWITCH_INTERVAL` meanwhile (restored after)."""
+    before = sys.getswitchinterval()
+    sys.setswitchinterval(min(before, SWITCH_INTERVAL))
+    try:
+        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say)
+    finally:
+        sys.setswitchinterval(before)
+
+
+def _build_map(
+    out: Path | str,
+    failure: Failure,
+    reach_cfg: ReachConfig,
+    config: BundleConfig,
+    robot: Robot,
+    progress: bool,
+    sharded: bool,
+    yes: bool,
+    say,
+) -> dict:
+    import jax
+
+    from lmjx.runtime import sharding
+
+    reach_cfg.validate(robot)
+    config.validate(robot)
+    out = Path(out)
+    folder = partial_path(out)
+    lead = jax.process_index() == 0
+    n = config.n_edges()
+    devices = sharding.device_count() if sharded else 1
+    if lead:
+        check_writable(out, "map file")
+        pre = preflight(n, out, devices, jax.default_backend())
+        for line in pre.lines():
+            say(line)
+        done_bytes = sum(f.stat().st_size for f in folder.iterdir()) if folder.is_dir() else 0
+        too_long = pre.seconds > DAY and not yes
+        if pre.disk_bytes - done_bytes > pre.free_bytes:
+            # Both problems in one message: a user who frees room should not then learn about --yes.
+            also = f"; it would also take about {_duration(pre.seconds)}: add --yes to start anyway" if too_long else ""
+            raise OutputPathError(
+                f"not enough room at {out.parent or '.'}: the build needs about {_size(pre.disk_bytes)}, "
+                f"{_size(pre.free_bytes)} are free; free some or choose another --out{also}"
+            )
+        if too_long:
+            raise ConfigError(
+                f"{n:,} edges would take about {_duration(pre.seconds)} here; add --yes to start anyway "
+                "(it can be stopped and resumed), or ask for fewer --edges"
+            )
+    plan = _plan(robot, failure, reach_cfg, config)
+    reach: ReachResult | None = None
+    if lead:
+        folder.mkdir(parents=True, exist_ok=True)
+        plan_path = folder / "plan.json"
+        if plan_path.exists():
+            if json.loads(plan_path.read_text()) != plan:
+                raise ConfigError(
+                    f"{folder} holds an unfinished build with other parameters; rerun that command, or remove "
+                    "the folder to start this one"
+                )
+        else:
+            tmp = plan_path.with_name(".plan.json.tmp")
+            tmp.write_text(json.dumps(plan, indent=1, sort_keys=True))
+            os.replace(tmp, plan_path)
+        if (folder / "reach.h5").exists():
+            reach = load_map(folder / "reach.h5", robot).reach
+    # One process with several devices: each device runs whole chunks of its own (its own
+    # programs, and host threads preparing and collecting its work), so that the host work
+    # scales with the devices too.  Several processes: every launch spread over all devices.
+    split = sharded and jax.process_count() == 1 and len(jax.local_devices()) > 1
+    size = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
+    done = saved_chunks(folder) if lead else []
+    todo = missing_ranges(done, n, size) if lead else []
+    if lead and (done or reach is not None):
+        kept = sum(b - a for a, b in done)
+        say(
+            f"resuming the build kept in {folder}: {kept:,} of {n:,} edges already computed"
+            f"{' (and the reach map)' if reach is not None else ''}"
+        )
+    if jax.process_count() > 1:  # everyone follows process 0's record of what is left
+        from jax.experimental import multihost_utils
+
+        count = int(multihost_utils.broadcast_one_to_all(np.int64(len(todo))))
+        arr = np.zeros((count, 2), np.int64) if not lead else np.asarray(todo, np.int64).reshape(-1, 2)
+        todo = [tuple(int(x) for x in r) for r in np.asarray(multihost_utils.broadcast_one_to_all(arr))]
+        has_reach = bool(multihost_utils.broadcast_one_to_all(np.int32(reach is not None)))
+    else:
+        has_reach = reach is not None
+    device = device_description()
+    half = reach_cfg.object_height / 2
+    if split:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, False, half, device=d, ik_chunk=reach_cfg.chunk)
+                       for d in jax.local_devices()]  # fmt: skip
+    else:
+        kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half, ik_chunk=reach_cfg.chunk)]
+    # The edges' programs compile in a thread of their own while the reach map is computed
+    # (they do not depend on it).
+    # the edge programs and the spatial index's capsule program
+    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), capsule_ends_kernel(robot).compile()])
+    t0 = time.perf_counter()
+    if reach is None:
+        # every process computes the reach map (the edges are drawn from it)
+        reach = reach_map(failure, reach_cfg, robot=robot, progress=progress and lead)
+        if lead and not has_reach:
+            write_reach_map(folder / "reach.h5", reach, robot)
+    t_reach = time.perf_counter() - t0
+    warmed()
+    compiled_before = max(ks.compile_seconds for ks in kernel_sets)
+    bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
+    bar.update(2 * sum(b - a for a, b in done))
+    t1 = time.perf_counter()
+    writer: MapWriter | None = None
+    main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
+    jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
+
+    def job(kernels: EdgeKernels, a: int, b: int):
+        t0 = time.perf_counter()
+        draws = draw_edges(reach, config, robot, a, b)
+        t1 = time.perf_counter()
+        samples = solve_starts(draws, kernels, bar)
+        t2 = time.perf_counter()
+        idx, rolled = roll_out(samples, kernels, bar)
+        bar.update(b - a - len(idx))
+        for k, v in (("draw", t1 - t0), ("ik", t2 - t1), ("rollout", time.perf_counter() - t2)):
+            jobs[k] += v
+        return samples, idx, rolled
+
+    # Threads per device (CHUNK_THREADS) in one process; several processes launch in one
+    # agreed order: one each, nothing ahead.
+    if jax.process_count() == 1:
+        threads, ahead = CHUNK_THREADS["several" if len(kernel_sets) > 1 else "one"]
+    else:
+        threads, ahead = 1, 0
+    sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
+    pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
+    window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
+    try:
+        writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets)) if lead else None
+        for k, (a, b) in enumerate(todo):
+            i = k % len(kernel_sets)
+            window.append(pools[i].submit(job, kernel_sets[i], a, b))
+            while len(window) >= (threads + ahead) * len(kernel_sets) or (window and k == len(todo) - 1):
+                t = time.perf_counter()
+                samples, idx, rolled = window.popleft().result()
+                t2 = time.perf_counter()
+                if writer is not None:
+                    writer.put(samples, idx, rolled)
+                main["wait"] += t2 - t
+                main["hand_over"] += time.perf_counter() - t2
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    finally:
+        for pool in pools:
+            pool.shutdown(wait=not window, cancel_futures=True)
+    # the devices compile side by side; what compiled before the edges began is not theirs
+    compile_seconds = max(ks.compile_seconds for ks in kernel_sets) - compiled_before
+    edge_seconds = time.perf_counter() - t1 - compile_seconds
+    summary = {"device": device, "devices": devices, "processes": jax.process_count()}
+    if writer is not None:
+        try:
+            summary |= writer.finish(out, _totals(kernel_sets), edge_seconds, device)
+        except BaseException:
+            writer.abort()
+            raise
+        summary["reach_seconds"] = t_reach
+        # from the first chunk to the finished file, compilation excluded
+        summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
+        summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
+        summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
+    threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
+    bar.close()
+    return summary
+
+
+def _in_background(fn: Callable[[], object]) -> Callable[[], None]:
+    """Start `fn` in a daemon thread (an error of the caller's does not wait for it); the
+    function returned waits for it to end and raises its exception, if any."""
+    failed: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            fn()
+        except BaseException as e:  # handed to whoever waits
+            failed.append(e)
+
+    thread = threading.Thread(target=run, name="lmjx-compile", daemon=True)
+    thread.start()
+
+    def wait() -> None:
+        thread.join()
+        if failed:
+            raise failed[0]
+
+    return wait
+
+
+def _totals(kernel_sets: list[EdgeKernels]) -> dict:
+    """The build's kernel figures: compilation as the longest of the devices' (they compile
+    side by side), run times summed over the devices (device-seconds)."""
+    timing: dict[str, float] = {}
+    for ks in kernel_sets:
+        for k, v in ks.rollout.timing.items():
+            timing[k] = timing.get(k, 0.0) + v
+    return {
+        "compile_seconds": max(ks.compile_seconds for ks in kernel_sets),
+        "rollout_seconds": sum(ks.rollout.kernel_seconds for ks in kernel_sets),
+        "rollout_timing": timing,
+        "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets),
+        "ik_seconds": sum(ks.ik.kernel_seconds for ks in kernel_sets),
+    }

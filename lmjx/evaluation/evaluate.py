@@ -1,0 +1,412 @@
+"""`lmjx evaluate`: trials over failures x scenarios x ASMs, the paper's Section V.
+
+Results are written after every trial (`results.json`, atomically), so an interrupted
+evaluation loses nothing and a rerun with the same arguments continues where it stopped.
+At the end: `report.md` (a table beside the paper's figures), `bubble.png` (success and task
+time per cell, as the paper's bubble chart) and `actions.png` (distributions of actions per
+successful task).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lmjx.errors import ConfigError
+from lmjx.evaluation.lockstep import run_lockstep
+from lmjx.evaluation.trial import make_simulator, setup_trial
+from lmjx.mapfile.read import MapFile, load_map
+from lmjx.model.robot import Robot
+from lmjx.planner.records import TrialResult
+from lmjx.planner.transit import TransitPlanner
+from lmjx.runtime.cores import usable_cores
+from lmjx.runtime.fileio import atomic_path, write_text_atomic
+from lmjx.runtime.progress import Progress
+from lmjx.sim.scenarios import TASK_SETS, scenario
+from lmjx.types import ASMS, PlannerConfig
+
+ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
+RECORD_KEYS = ("failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s")
+
+# The paper's figures (Section V), for the report.
+PAPER_NOTES = (
+    "Greedy: 100 % success in every scenario of case 1; in case 2, 70.6 % in scenario 1 (its best case-2 "
+    "cell); Lazy: case-2 successes in scenarios 2 and 3 (up to 88.9 %); case 1 scenario 3: Lazy 73.3 %, "
+    "Random 66.7 %.  Task times: Greedy the longest (up to 307.5 s), Random the shortest (down to 37.5 s), "
+    "Lazy 47.3-82.7 s.  267 real-robot trials."
+)
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    failures: tuple[str, ...] = ("case1", "case2")
+    scenarios: tuple[int, ...] = (1, 2, 3)
+    asms: tuple[str, ...] = ASMS
+    trials: int = 15
+    seed: int = 0
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    backend: str = "cpu"
+    tasks: str = "paper"  # the task set (lmjx.sim.scenarios.TASK_SETS)
+    part: tuple[int, int] = (1, 1)  # (K, N): only trials t with t % N == K - 1 (a run split in N parts)
+
+    def validate(self) -> None:
+        for a in self.asms:
+            if a not in ASMS:
+                raise ConfigError(f"unknown ASM '{a}'; use random, lazy, greedy")
+        for s in self.scenarios:
+            if s not in (1, 2, 3):
+                raise ConfigError(f"unknown scenario {s}; the scenarios are 1, 2 and 3")
+        if self.tasks not in TASK_SETS:
+            raise ConfigError(f"unknown task set '{self.tasks}'; use paper or hard")
+        if self.trials < 1:
+            raise ConfigError("--trials must be at least 1")
+        k, n = self.part
+        if not 1 <= k <= n:
+            raise ConfigError(f"--part {k}/{n}: K/N needs 1 <= K <= N (e.g. 2/4: the second of four parts)")
+        if k > self.trials:
+            raise ConfigError(f"--part {k}/{n} holds no trial of {self.trials} per cell (its first is trial {k})")
+
+
+def trial_seed(base: int, scenario: int, trial: int) -> int:
+    """The same seed for a (scenario, trial) across failures and ASMs: the same layouts and
+    the same "real" world perturbations for everyone."""
+    return base * 100_000 + scenario * 1000 + trial
+
+
+def _num(x: float | None) -> str:
+    return "–" if x is None else f"{x:.1f}"
+
+
+def _load_results(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ConfigError(f"{path} exists but cannot be read ({e}); move it away to start afresh") from None
+    if not isinstance(data, list):
+        raise ConfigError(f"{path} is not an lmjx results list; move it away to start afresh")
+    return data
+
+
+def evaluate(
+    robot: Robot,
+    maps: dict[str, MapFile],
+    config: EvalConfig,
+    out: Path,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
+) -> list[dict]:
+    """Run every missing trial; return all records (also in out/results.json); `say` is told
+    in one line when trials of an earlier run are kept (a resumed run).
+
+    The trials of a scenario run together (`lmjx.evaluation.lockstep`): on a GPU their candidates are
+    simulated in shared batches, and executions run on all cores; on the CPU as many trials
+    as cores are in flight at once.  Each trial makes the decisions it would make alone.  A
+    record is written as soon as its trial ends."""
+    config.validate()
+    out.mkdir(parents=True, exist_ok=True)
+    results_path = out / "results.json"
+    records = _load_results(results_path)
+    others = sorted({str(r.get("robot", "panda")) for r in records} - {robot.key})
+    if others:
+        raise ConfigError(
+            f"{results_path} holds trials of the robot '{others[0]}', not '{robot.key}'; use another --out"
+        )
+    tasks = sorted({str(r.get("tasks", "hard")) for r in records} - {config.tasks})
+    if tasks:
+        raise ConfigError(
+            f"{results_path} holds trials of the task set '{tasks[0]}', not '{config.tasks}'; use another --out"
+        )
+    done = {(r["failure"], r["scenario"], r["asm"], r["seed"]) for r in records}
+    todo = [
+        (f, s, a, trial_seed(config.seed, s, t))
+        for f in config.failures
+        for s in config.scenarios
+        for a in config.asms
+        for t in range(config.trials)
+        if t % config.part[1] == config.part[0] - 1
+    ]
+    rank = {k: i for i, k in enumerate(todo)}
+    todo = [k for k in todo if k not in done]
+    if say is not None and len(todo) < len(rank) and done:
+        say(f"resuming: {len(rank) - len(todo)} of {len(rank)} trials already in {results_path}")
+    bar = Progress(total=len(todo), desc="trials", enabled=progress, unit="trial")
+    threads = usable_cores()
+    for s in sorted({k[1] for k in todo}):
+        group = [k for k in todo if k[1] == s]
+        sim = (
+            make_simulator(robot, s, config.backend, config.tasks, servo=config.planner.servo)
+            if any(k[2] != "random" for k in group)
+            else None
+        )
+        batched = bool(sim is not None and sim.prefers_batches)
+        transits = {f: TransitPlanner(robot, maps[f].failure, batched=batched) for f in {k[0] for k in group}}
+        trials = []
+        for f, _, a, seed in group:
+            pc = PlannerConfig(**{**config.planner.__dict__, "asm": a})
+            setup = setup_trial(robot, maps[f], s, pc, seed, sim if a != "random" else None, transits[f], config.tasks)
+            trials.append((setup.planner.trial(setup.world, setup.layout, setup.planner_seed), setup.world))
+        bar.set_description(f"scenario {s}: {len(group)} trials together")
+
+        def finished(i: int, res: TrialResult, group: list = group) -> None:
+            f, s_, a, seed = group[i]
+            records.append(
+                {
+                    "robot": robot.key,
+                    "tasks": config.tasks,
+                    "failure": f,
+                    "scenario": s_,
+                    "asm": a,
+                    "seed": seed,
+                    "success": res.success,
+                    "actions": res.actions,
+                    "planning_s": round(res.planning_s, 3),
+                    "compile_s": round(res.compile_s, 3),  # not in planning_s (lmjx.runtime.compiletime)
+                    "execution_s": round(res.execution_s, 3),
+                    "final_distance_m": round(res.final_distance, 4),
+                    "end": res.reason,
+                    "stopped": res.stopped,
+                    "sim": config.backend if a != "random" else "none",
+                    "candidates": config.planner.greedy_candidates if a == "greedy" else None,
+                    "asm_settings": config.planner.settings(a),
+                    "steps": res.action_records(),
+                    # the decision that found no action, where one ended the trial: why (`StepRecord.no_action`)
+                    **({"no_action": res.steps[-1].no_action} if res.steps and res.steps[-1].no_action else {}),
+                }
+            )
+            records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))
+            write_text_atomic(results_path, json.dumps(records, indent=1) + "\n")
+            bar.update(1)
+
+        # a GPU answers every trial's candidates in one batch; C MuJoCo gains nothing from
+        # more trials in flight than cores, and a stopped run keeps the trials that ended
+        run_lockstep(trials, sim, finished, threads=threads, window=None if batched else threads)
+    bar.close()
+    return records
+
+
+def summarize(records: list[dict]) -> list[dict]:
+    """Per (failure, scenario, asm): trials, success rate, mean actions/times."""
+    out = []
+    for (f, s, a), rs in _cells(records):
+        ok = [r for r in rs if r["success"]]
+        out.append(
+            {
+                "failure": f,
+                "scenario": s,
+                "asm": a,
+                "trials": len(rs),
+                "success_rate": len(ok) / len(rs),
+                "actions_mean_success": float(np.mean([r["actions"] for r in ok])) if ok else None,
+                "planning_s_mean": float(np.mean([r["planning_s"] for r in rs])),
+                "execution_s_mean": float(np.mean([r["execution_s"] for r in rs])),
+                "task_s_mean": float(np.mean([r["planning_s"] + r["execution_s"] for r in rs])),
+            }
+        )
+    return out
+
+
+def simulator_description(name: str) -> str:
+    """Where the planner's simulations ran, in words, for reports."""
+    if name == "gpu":
+        import warp as wp
+
+        return f"gpu: MuJoCo Warp on {wp.get_device('cuda:0').name}, whole scene"
+    what = "whole scene" if name == "cpu" else "the target and its 3 nearest objects"
+    return f"{name}: C MuJoCo mujoco.rollout on {usable_cores()} cores, {what}"
+
+
+def _settings_lines(records: list[dict], config: EvalConfig) -> list[str]:
+    """The ASM settings the trials ran with, as their records say (a report rewritten from
+    merged runs: each distinct set with its ASMs), else this run's config's."""
+    by: dict[str, tuple[dict, set[str]]] = {}  # settings (by content) -> (as recorded, the ASMs)
+    for r in records:
+        if "asm_settings" in r:
+            by.setdefault(json.dumps(r["asm_settings"], sort_keys=True), (r["asm_settings"], set()))[1].add(r["asm"])
+    if not by:
+        by = {"": (config.planner.settings(), set())}
+
+    def line(settings: dict) -> str:
+        return ", ".join(f"{k} {_onoff(v)}" for k, v in settings.items())
+
+    if len(by) == 1:
+        return [f"ASM settings: {line(next(iter(by.values()))[0])}."]
+    return [f"ASM settings ({', '.join(sorted(asms))}): {line(st)}." for st, asms in by.values()]
+
+
+def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:
+    rows = summarize(records)
+    planned = config.trials * len(config.failures) * len(config.scenarios) * len(config.asms)
+    lines = [
+        "# lmjx evaluation" + (f": {robot.profile.description or robot.key}" if robot is not None else ""),
+        "",
+        f"{len(records)} trials ({config.trials} per cell"
+        + (f"; a partial run: {planned - len(records)} of {planned} not run yet" if len(records) < planned else "")
+        + f"), task set '{config.tasks}', simulator {simulator}; "
+        f"planner: greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} "
+        f"tries, at most {_budget(config)} actions per task.",
+        "",
+        "The trials of a scenario run together; on a GPU their candidates share batches, and a batch's seconds "
+        "are charged to each trial in proportion to its candidates (its planning time).",
+        "",
+        "| failure | scenario | ASM | trials | success | actions (mean, successes) | planning s | execution s "
+        "| task s |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['failure']} | {r['scenario']} | {r['asm']} | {r['trials']} | {r['success_rate'] * 100:.1f} % | "
+            f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
+            f"{r['task_s_mean']:.1f} |"
+        )
+    lines += ["", *_settings_lines(records, config), ""]
+    lines += [
+        'How the trials ended, and what their executed actions did in the "real" world (the target moved by '
+        "1 cm or more; a transit touched a movable object; a transit touched a fixed obstacle):",
+        "",
+        "| failure | scenario | ASM | ends | actions | target moved >= 1 cm | transit touched an object "
+        "| transit hit a fixed obstacle |",
+        "| --- | --- | --- | --- | ---: | ---: | ---: | ---: |",
+    ]
+    for (f, sc, a), rs in _cells(records):
+        ends = Counter(_end_label(r) for r in rs)
+        acts = [x for r in rs for x in r.get("steps", [])]
+        moved = [x for x in acts if x.get("target_moved_m") is not None]
+        lines.append(
+            f"| {f} | {sc} | {a} | {', '.join(f'{n} {e}' for e, n in sorted(ends.items(), key=lambda kv: -kv[1]))} "
+            f"| {len(acts)} | {_share(sum(x['target_moved_m'] >= 0.01 for x in moved), len(moved))} "
+            f"| {_share(sum(bool(x.get('transit_contacts')) for x in acts), len(acts))} "
+            f"| {_share(sum(bool(x.get('transit_hit_fixed')) for x in acts), len(acts))} |"
+        )
+    lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]
+    return "\n".join(lines)
+
+
+def _budget(config: EvalConfig) -> int:
+    return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
+
+
+def _end_label(r: dict) -> str:
+    """How a trial ended, for the report: 'goal' for every success (records written before the
+    'stopped' field kept the planner's reason as their end), with what stopped the planner when
+    that differs (it stops only once the observed target is `goal_margin` inside the goal)."""
+    end = "goal" if r["success"] else r["end"]
+    stopped = r.get("stopped") or r["end"]
+    return end if stopped == end else f"{end} (then {stopped})"
+
+
+def _share(n: int, d: int) -> str:
+    return f"{100 * n / d:.1f} %" if d else "-"
+
+
+def _onoff(v) -> str:
+    return "on" if v is True else "off" if v is False else "none" if v is None else str(v)
+
+
+def _cells(records: list[dict]) -> list[tuple[tuple, list[dict]]]:
+    cells: dict[tuple, list[dict]] = {}
+    for r in records:
+        cells.setdefault((r["failure"], r["scenario"], r["asm"]), []).append(r)
+    return sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][1], ASMS.index(kv[0][2])))
+
+
+def plots(records: list[dict], out: Path) -> None:
+    """bubble.png (success and task time per cell) and actions.png (actions to complete, per
+    ASM, over the successful trials); both hold up when few or no trials succeed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = summarize(records)
+    most = max((r["trials"] for r in rows), default=0)  # a cell with fewer (a partial run) says how many
+    failures = sorted({r["failure"] for r in rows})
+    scenarios = sorted({r["scenario"] for r in rows})
+    asms = [a for a in ASMS if any(r["asm"] == a for r in rows)]
+    times = [r["task_s_mean"] for r in rows]
+    vmin, vmax = (min(times), max(times)) if times else (0, 1)
+    if vmax <= vmin:
+        vmax = vmin + 1.0
+    fig, axes = plt.subplots(
+        1, max(1, len(failures)), figsize=(5.5 * max(1, len(failures)), 4.4), squeeze=False, layout="constrained"
+    )
+    for ax, f in zip(axes[0], failures, strict=True):
+        sc = None
+        for r in rows:
+            if r["failure"] != f:
+                continue
+            x, y = scenarios.index(r["scenario"]), asms.index(r["asm"])
+            size = 60 + 2400 * r["success_rate"]
+            sc = ax.scatter(x, y, s=size, c=[r["task_s_mean"]], cmap="RdYlGn_r", vmin=vmin, vmax=vmax,
+                            edgecolors="black")  # fmt: skip
+            # beside the circle (its radius is sqrt(size)/2 points), not on it
+            label = f"{r['success_rate'] * 100:.0f}%" + (f"\nn={r['trials']}" if r["trials"] < most else "")
+            ax.annotate(label, (x, y), xytext=(np.sqrt(size) / 2 + 3, 0),
+                        textcoords="offset points", ha="left", va="center", fontsize=9)  # fmt: skip
+        ax.set_xticks(range(len(scenarios)), [f"scenario {s}" for s in scenarios])
+        ax.set_yticks(range(len(asms)), asms)
+        ax.set_xlim(-0.6, len(scenarios) - 0.2)
+        ax.set_ylim(-0.6, len(asms) - 0.4)
+        ax.set_title(f"failure {f}")
+        if sc is not None:
+            fig.colorbar(sc, ax=ax, label="mean task time [s]")
+    fig.suptitle("Success (circle size, share beside it) and task time (colour) per action selection mechanism")
+    with atomic_path(out / "bubble.png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+    fig, axes = plt.subplots(
+        max(1, len(failures)), max(1, len(scenarios)), figsize=(4 * max(1, len(scenarios)),
+        3 * max(1, len(failures))), squeeze=False, layout="constrained",
+    )  # fmt: skip
+    for i, f in enumerate(failures):
+        for j, s in enumerate(scenarios):
+            ax = axes[i][j]
+            drawn = False
+            for a in asms:
+                n = [
+                    r["actions"]
+                    for r in records
+                    if (r["failure"], r["scenario"], r["asm"], r["success"]) == (f, s, a, True)
+                ]
+                if n:
+                    ax.hist(n, bins=np.arange(0.5, max(n) + 1.5), histtype="step", density=True, label=a,
+                            linewidth=1.8, color=ASM_COLORS.get(a))  # fmt: skip
+                    drawn = True
+            ax.set_title(f"{f}, scenario {s}", fontsize=10)
+            ax.set_xlabel("actions to complete")
+            if j == 0:
+                ax.set_ylabel("density")
+            if drawn:
+                ax.legend(fontsize=8)
+            else:
+                ax.set_xticks([])
+                ax.set_yticks([])
+                ax.text(0.5, 0.5, "no trial succeeded", transform=ax.transAxes, ha="center", va="center",
+                        fontsize=9, color="0.4")  # fmt: skip
+    with atomic_path(out / "actions.png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def load_maps(robot: Robot, failures: tuple[str, ...], folder: Path) -> dict[str, MapFile]:
+    """maps/<failure>.h5 for each failure, checked to hold that failure with edges."""
+    from lmjx.model.failure import parse_failure
+
+    out = {}
+    for f in failures:
+        want = parse_failure(f, robot)
+        path = folder / f"{f}.h5"
+        m = load_map(path, robot)
+        if m.failure.locked != want.locked:
+            raise ConfigError(f"{path} holds a map of failure {m.failure.spec}, not {f}")
+        if m.edges is None or m.reach is None:
+            raise ConfigError(f"{path} has no edges; build it with: lmjx build-map --failure {f} --out {path}")
+        out[f] = m
+    return out

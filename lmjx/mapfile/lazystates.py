@@ -1,0 +1,147 @@
+"""Edge states of a lazily opened map, read by HDF5 chunk with parallel decompression.
+
+A map larger than memory keeps its states (q, qd, p: rows of float32) in the file.  The
+planner reads a few hundred to a few thousand scattered edges per decision; through h5py
+each of them costs a chunk decompressed under the interpreter lock, one after another
+(about 6 s for 1,024 edges of a 5-million-edge map on an H100 host).  `StateReader` reads
+the raw chunks (`read_direct_chunk`), undoes HDF5's deflate and shuffle filters on all
+cores (zlib releases the lock) and keeps the decompressed chunks in a bounded LRU cache,
+so the edges over a target, visited again at the next decision, cost nothing the second
+time.  Datasets stored any other way (other filters or chunk shapes) are read through h5py.
+"""
+
+from __future__ import annotations
+
+import threading
+import zlib
+from collections import OrderedDict
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+
+import h5py
+import numpy as np
+
+from lmjx.runtime.cores import usable_cores
+
+CACHE_BYTES = 256 * 2**20  # decompressed chunks kept per dataset
+
+
+def _plain_filters(ds: h5py.Dataset) -> bool:
+    """True when every chunk of `ds` is shuffle, then deflate (what lmjx writes), nothing else."""
+    if ds.chunks is None or ds.ndim != 2 or ds.chunks[1] != ds.shape[1] or ds.dtype != np.float32:
+        return False
+    if ds.compression != "gzip" or not ds.shuffle or ds.fletcher32 or ds.scaleoffset is not None:
+        return False
+    plist = ds.id.get_create_plist()
+    names = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
+    return names == [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE]
+
+
+class StateReader:
+    """Array-like view of an (S, w) float32 state dataset: `reader[a:b]`, `len(reader)`,
+    `reader.shape`; `prefetch` decompresses the chunks of many row ranges at once."""
+
+    def __init__(self, ds: h5py.Dataset, cache_bytes: int = CACHE_BYTES, threads: int | None = None) -> None:
+        self.ds = ds
+        self.shape = ds.shape
+        self.dtype = ds.dtype
+        self.fast = _plain_filters(ds)
+        self.rows = ds.chunks[0] if ds.chunks else 0
+        self.width = ds.shape[1] if ds.ndim == 2 else 0
+        self.cache: OrderedDict[int, np.ndarray] = OrderedDict()
+        self.cache_bytes = cache_bytes
+        self.held = 0
+        self.threads = threads or usable_cores()
+        self._pool: ThreadPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    @property
+    def size(self) -> int:
+        return self.ds.size
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def _decompress(self, raw: bytes) -> np.ndarray:
+        flat = np.frombuffer(zlib.decompress(raw), np.uint8)
+        # shuffle stores byte 0 of every element, then byte 1, ...: undo it
+        return np.ascontiguousarray(flat.reshape(4, -1).T).view(np.float32).reshape(self.rows, self.width)
+
+    def _load(self, chunks: Iterable[int]) -> dict[int, np.ndarray]:
+        """The chunks asked for, decompressing those not yet in the cache (all cores), then
+        caching them.  The blocks are returned, not looked up again: caching the new ones may
+        evict chunks of the same request (those already cached, the least recently used)."""
+        want = list(dict.fromkeys(chunks))
+        got: dict[int, np.ndarray] = {}
+        for c in want:
+            if c in self.cache:
+                self.cache.move_to_end(c)
+                got[c] = self.cache[c]
+        todo = [c for c in want if c not in got]
+        if not todo:
+            return got
+        raws = []
+        for c in todo:
+            mask, raw = self.ds.id.read_direct_chunk((c * self.rows, 0))
+            if mask:  # a filter was skipped for this chunk: let HDF5 read it
+                raws.append(None)
+            else:
+                raws.append(raw)
+        if len(todo) > 1 and self.threads > 1:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lmjx-states")
+            blocks = list(self._pool.map(lambda r: None if r is None else self._decompress(r), raws))
+        else:
+            blocks = [None if r is None else self._decompress(r) for r in raws]
+        for c, block in zip(todo, blocks, strict=True):
+            if block is None:
+                a = c * self.rows
+                block = np.zeros((self.rows, self.width), np.float32)
+                part = self.ds[a : min(a + self.rows, self.shape[0])]
+                block[: len(part)] = part
+            self._put(c, block)
+            got[c] = block
+        return got
+
+    def _put(self, c: int, block: np.ndarray) -> None:
+        self.cache[c] = block
+        self.held += block.nbytes
+        while self.held > self.cache_bytes and len(self.cache) > 1:
+            _, old = self.cache.popitem(last=False)
+            self.held -= old.nbytes
+
+    def _chunks_of(self, a: int, b: int) -> range:
+        return range(a // self.rows, (b - 1) // self.rows + 1) if b > a else range(0)
+
+    def prefetch(self, ranges: Iterable[tuple[int, int]]) -> None:
+        """Make rows [a, b) of every range cheap to read (their chunks decompressed at once)."""
+        if not self.fast:
+            return
+        with self._lock:
+            needed = [c for a, b in ranges for c in self._chunks_of(int(a), int(b))]
+            # at most what the cache holds: beyond that, prefetching would evict its own chunks
+            limit = max(1, self.cache_bytes // max(1, self.rows * self.width * 4))
+            self._load(needed[:limit])
+
+    def __getitem__(self, key):
+        if not self.fast or not isinstance(key, slice) or key.step not in (None, 1):
+            return self.ds[key]
+        a, b, _ = key.indices(self.shape[0])
+        if b <= a:
+            return np.zeros((0, self.width), np.float32)
+        chunks = self._chunks_of(a, b)
+        if len(chunks) * self.rows * self.width * 4 > self.cache_bytes // 2:
+            return self.ds[key]  # a long run of rows: HDF5 reads it as well as we would
+        with self._lock:
+            blocks = self._load(chunks)
+            parts = []
+            for c in chunks:
+                block = blocks[c]
+                lo, hi = max(a, c * self.rows), min(b, (c + 1) * self.rows)
+                parts.append(block[lo - c * self.rows : hi - c * self.rows])
+            return np.concatenate(parts) if len(parts) > 1 else parts[0].copy()

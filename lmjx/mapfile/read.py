@@ -1,0 +1,238 @@
+"""Reading map files with validation: `load_map` opens one (in memory, or lazily with the
+edges' states left in the file) and raises `MapFileError` in one line when it is unusable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from lmjx import __version__
+from lmjx.edges.bundle import Bundle, BundleConfig
+from lmjx.errors import MapFileError
+from lmjx.mapfile.lazystates import StateReader
+from lmjx.mapfile.schema import SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
+from lmjx.model.failure import Failure
+from lmjx.model.robot import ROBOTS, Robot, as_robot, load_robot
+from lmjx.reach.reachability import ReachConfig, ReachResult
+
+LAZY_BYTES = 512 * 2**20  # edge states larger than this are read on demand (load_map's default)
+CACHE_BYTES = 256 * 2**20  # HDF5 chunk cache per state dataset of a lazily opened map
+
+
+@dataclass
+class MapFile:
+    """A validated map file: everything in memory, but for the edges' states of a lazily
+    opened map (`lazy`), which stay in the file (kept open) and are read on demand."""
+
+    path: Path
+    attrs: dict
+    failure: Failure
+    reach: ReachResult | None
+    edges: Bundle | None = None
+    edges_attrs: dict = dataclasses.field(default_factory=dict)
+    lazy: bool = False
+    file: h5py.File | None = dataclasses.field(default=None, repr=False)
+    robot: Robot | None = dataclasses.field(default=None, repr=False)  # the robot it was built for
+
+    def __repr__(self) -> str:
+        parts = [f"{self.robot.key if self.robot else '?'}", f"failure {self.failure.spec!r}"]
+        if self.reach is not None:
+            a = self.reach.areas()
+            r = self.reach
+            parts.append(f"reach {len(r.ys)} x {len(r.xs)} cells of {r.config.cell * 100:g} cm")
+            parts.append(f"PM {a['pm']:.3f} m^2, NPM+PM {a['npm_pm']:.3f} m^2")
+        if self.edges is not None:
+            parts.append(f"{self.edges.n_edges:,} edges of {self.edges.sampled:,} sampled")
+        lazy = ", lazy" if self.lazy else ""
+        return f"MapFile({str(self.path)!r}: {'; '.join(parts)}{lazy})"
+
+    def __enter__(self) -> MapFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.edges is not None:
+            for name in ("q", "qd", "p"):
+                data = getattr(self.edges, name)
+                if isinstance(data, StateReader):
+                    data.close()
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+
+
+def robot_for_file(path: Path, attrs: dict, robot: Robot | None) -> Robot:
+    """The robot to read a file with: `robot` if it is the one the file was built for (else
+    MapFileError), or, when None, the shipped robot the file names."""
+    name = file_robot(attrs)
+    if robot is None:
+        if name not in ROBOTS:
+            raise MapFileError(
+                f"{path} was built for the robot '{name}' (a user's MJCF): pass --robot PATH to its file"
+            )
+        return load_robot(name)
+    mine = robot.key if robot.key in ROBOTS else robot.name
+    if name != mine and (name in ROBOTS or robot.key in ROBOTS):
+        raise MapFileError(f"{path} was built for the robot '{name}', not '{mine}'; use --robot {name} or rebuild it")
+    return robot
+
+
+def load_map(
+    path: str | Path, robot: Robot | str | Path | None = None, check_robot: bool = True, lazy: bool | None = None
+) -> MapFile:
+    """Open and validate a map file; raise MapFileError (one line) when it is unusable.
+    `robot` (a Robot, a name or an MJCF's path): the robot to read it with, which must be
+    the one it was built for; None: the shipped robot the file names.  A `with` block
+    closes it (a lazily opened map keeps its file open until then).
+
+    >>> import lmjx
+    >>> with lmjx.load_map("maps/case2.h5") as m:   # written by `make run`
+    ...     print(m.reach.areas()["pm"], m.edges.n_edges > 0)
+    0.0 True
+
+    The reach map, the per-edge arrays and the spatial index are read at once; the edge
+    states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which
+    stays open (a map larger than memory is usable).  lazy=None: lazy when the states would
+    take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions."""
+    p = Path(path)
+    robot = as_robot(robot) if robot is not None else None
+    if not p.exists():
+        raise MapFileError(f"map file {p} does not exist")
+    if p.is_dir():
+        raise MapFileError(f"{p} is a folder, not a map file")
+    try:
+        is_h5 = h5py.is_hdf5(str(p))
+    except OSError as e:
+        raise MapFileError(f"cannot read {p}: {e}") from None
+    if not is_h5:
+        raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)")
+    try:
+        f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+    except OSError as e:
+        raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
+    keep_open = False
+    try:
+        with f:
+            attrs = {k: f.attrs[k] for k in f.attrs}
+            if attr_str(attrs.get("schema", "")) != SCHEMA:
+                raise MapFileError(f"{p} is an HDF5 file but not an lmjx map (no schema='{SCHEMA}' attribute)")
+            version = int(attrs.get("schema_version", -1))
+            if version != SCHEMA_VERSION:
+                rebuild = ""
+                if version == 1 and "failure" in attrs:
+                    robot_name = file_robot(attrs)
+                    rebuild = (
+                        f": its spatial index follows one interaction point, not the whole arm; rebuild it with "
+                        f"lmjx build-map{'' if robot_name == 'panda' else f' --robot {robot_name}'} "
+                        f'--failure "{attr_str(attrs["failure"])}" --out {p}'
+                    )
+                raise MapFileError(
+                    f"{p} has map schema version {version}; this lmjx ({__version__}) reads version {SCHEMA_VERSION}"
+                    + rebuild
+                )
+            robot = robot_for_file(p, attrs, robot) if check_robot else (robot or load_robot(file_robot(attrs)))
+            if check_robot and attr_str(attrs.get("robot_model_hash", "")) != robot.model_hash:
+                other = attr_str(attrs.get("robot_model_hash", ""))[:12]
+                raise MapFileError(
+                    f"{p} was built for another version of the robot '{file_robot(attrs)}' (model hash {other}..., "
+                    f"this lmjx has {robot.model_hash[:12]}...); rebuild the map"
+                )
+            locked = tuple(
+                (int(j), float(a)) for j, a in zip(attrs["locked_joints"], attrs["locked_angles"], strict=True)
+            )
+            fail_name = attr_str(attrs["failure"])
+            failure = Failure(fail_name, locked, robot.nq)
+            reach = _read_reach(f["reach"], failure, robot, attrs) if "reach" in f else None
+            edges = None
+            if "edges" in f:
+                g = f["edges"]
+                states_bytes = sum(g[k].size * g[k].dtype.itemsize for k in ("q", "qd", "p"))
+                lazy = states_bytes > LAZY_BYTES if lazy is None else lazy
+                edges = _read_edges(g, failure, lazy)
+                keep_open = lazy
+            edges_attrs = dict(f["edges"].attrs) if "edges" in f else {}
+            if keep_open:  # the with block must not close it: reopen the handle it holds
+                f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+                g = f["edges"]
+                edges.q, edges.qd, edges.p = (StateReader(g[k]) for k in ("q", "qd", "p"))
+    except MapFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
+    return MapFile(
+        p, attrs, failure, reach, edges, edges_attrs, lazy=keep_open, file=f if keep_open else None, robot=robot
+    )
+
+
+def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> ReachResult:
+    a = dict(g.attrs)
+    return ReachResult(
+        failure=failure,
+        config=config_from_attrs(ReachConfig, a),
+        xs=g["x"][...],
+        ys=g["y"][...],
+        labels=g["labels"][...],
+        labels_smooth=g["labels_smooth"][...],
+        q=g["q"][...],
+        attempt=g["attempt"][...],
+        site=g["site"][...],
+        target=g["target"][...],
+        pos_err=g["pos_err"][...],
+        seconds=float(a["seconds"]),
+        compile_seconds=float(a["compile_seconds"]),
+        kernel_seconds=float(a.get("kernel_seconds", float("nan"))),
+        device=attr_str(a["device"]),
+        problems=int(a["problems"]),
+        robot_hash=attr_str(root["robot_model_hash"]),
+        site_names=robot.site_names,
+    )
+
+
+def _read_edges(g: h5py.Group, failure: Failure, lazy: bool) -> Bundle:
+    a = dict(g.attrs)
+    offset = g["offset"][...]
+    length = g["length"][...]
+    q = g["q"] if lazy else g["q"][...]
+    if len(offset) and int(offset[-1] + length[-1]) != len(q):
+        raise MapFileError("the edge offsets do not match the stored states; rebuild the map")
+    if "q_start" in g:
+        q_start = g["q_start"][...]
+    elif lazy:  # a map written before q_start was stored
+        q_start = np.concatenate([q[o : o + 1] for o in offset]) if len(offset) else np.zeros((0, q.shape[1]))
+    else:
+        q_start = q[offset]
+    return Bundle(
+        config=config_from_attrs(BundleConfig, a),
+        failure=failure,
+        offset=offset,
+        length=length,
+        q=q,
+        qd=g["qd"] if lazy else g["qd"][...],
+        p=g["p"] if lazy else g["p"][...],
+        q_start=q_start.astype(np.float32),
+        twist=g["twist"][...],
+        duration=g["duration"][...],
+        site=g["site"][...],
+        start_cell=g["start_cell"][...],
+        min_manipulability=g["min_manipulability"][...],
+        peak_torque_ratio=g["peak_torque_ratio"][...],
+        peak_velocity_ratio=g["peak_velocity_ratio"][...],
+        peak_acceleration_ratio=g["peak_acceleration_ratio"][...],
+        index_offset=g["index/offset"][...],
+        index_edges=g["index/edges"][...],
+        sampled=int(a["edges_sampled"]),
+        rejected={k[len("rejected_") :]: int(v) for k, v in a.items() if k.startswith("rejected_")},
+        seconds=float(a["seconds"]),
+        compile_seconds=float(a["compile_seconds"]),
+        rollout_seconds=float(a["rollout_seconds"]),
+        edge_steps=int(a["edge_steps"]),
+        states_evaluated=int(a["states_evaluated"]),
+        device=attr_str(a["device"]),
+    )

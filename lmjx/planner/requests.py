@@ -1,0 +1,52 @@
+"""What a planner asks of whoever drives it (`Simulate`, `Execute`) and the simulator's
+answer (`Simulated`): one trial answered request by request (`edge_planner.drive`), or many
+trials' requests answered together (`lmjx.evaluation.lockstep`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lmjx.types import Action
+
+
+@dataclass
+class Simulate:
+    """A planner's request: roll these actions out from this observed state (or from each of
+    several states of the objects: `objects` (S, n, 7), the answer then start-major, S x
+    len(actions) outcomes)."""
+
+    robot_q: np.ndarray  # (nj,)
+    objects: np.ndarray  # (n, 7) or (S, n, 7)
+    actions: list[Action]
+
+    def parts(self) -> list[tuple[np.ndarray, np.ndarray, list[Action]]]:
+        """The request as `Simulator.simulate_many`'s requests, one per start state."""
+        starts = self.objects if self.objects.ndim == 3 else self.objects[None]
+        return [(self.robot_q, o, self.actions) for o in starts]
+
+    @property
+    def rollouts(self) -> int:
+        return len(self.actions) * (len(self.objects) if self.objects.ndim == 3 else 1)
+
+
+@dataclass
+class Simulated:
+    """The answer: final object poses (len(actions), n, 7), the seconds charged for them and,
+    apart, the seconds of compilation they took (`lmjx.runtime.compiletime`; not in `seconds`)."""
+
+    objects: np.ndarray
+    seconds: float
+    compile_s: float = 0.0
+
+
+@dataclass
+class Execute:
+    """A planner's request: execute this action in the world and observe."""
+
+    action: Action
+
+
+Request = Simulate | Execute

@@ -1,0 +1,72 @@
+"""Where lmjx keeps compiled programs between runs, so that each is compiled once per machine.
+
+Three caches live in one per-user folder:
+  * `<dir>/jax`: JAX's persistent compilation cache (the IK, rollout and clearance kernels);
+  * `<dir>/export`: those kernels traced (JAX exports; tracing them takes seconds too), keyed
+    by the kernel, lmjx's kernel sources, JAX's version and the platform (`lmjx.runtime.batching`);
+  * `<dir>/warp`: Warp's kernel cache (MuJoCo Warp's kernels, for the GPU simulator).
+Beside them, not a compiled program: `<dir>/pushes`, the push counts of a map and scenario
+(`lmjx.planner.pushfield.cached_counts`).
+The folder is, in this order: `--cache-dir DIR` on the command line, the environment
+variable `LMJX_CACHE_DIR`, `$XDG_CACHE_HOME/lmjx`, `~/.cache/lmjx`.  `off` turns lmjx's
+caching off (JAX then compiles every run; Warp keeps its own default cache).  A
+`JAX_COMPILATION_CACHE_DIR` the user set is left alone.  Nothing here compiles anything.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+ENV = "LMJX_CACHE_DIR"
+OFF = "off"
+MIN_COMPILE_SECONDS = "0.2"  # programs that compile faster than this are not worth a file
+
+
+def cache_dir(choice: str | None = None) -> Path | None:
+    """The cache folder for a `--cache-dir` value (None: from the environment); None when off."""
+    text = choice if choice is not None else os.environ.get(ENV)
+    if text is not None and text.strip():
+        return None if text.strip().lower() == OFF else Path(text).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "lmjx"
+
+
+def configure(choice: str | None = None, warn: Callable[[str], None] | None = None) -> Path | None:
+    """Point JAX (through its environment variables, before JAX starts) and Warp (through
+    `LMJX_CACHE_DIR`, read when the GPU simulator starts Warp) at the cache folder.
+
+    A folder that cannot be written is not an error: `warn` is told in one line and caching
+    is turned off for this run (everything still runs, compiling again)."""
+    folder = cache_dir(choice)
+    if folder is None:
+        os.environ[ENV] = OFF
+        return None
+    try:
+        (folder / "jax").mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe.", dir=folder / "jax")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        if warn is not None:
+            warn(
+                f"cannot write the compile cache in {folder} ({e.strerror or type(e).__name__}); running without "
+                "it (compiling again): give --cache-dir a writable folder, or --cache-dir off"
+            )
+        os.environ[ENV] = OFF
+        return None
+    os.environ[ENV] = str(folder)
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(folder / "jax"))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", MIN_COMPILE_SECONDS)
+    return folder
+
+
+def configure_warp() -> None:
+    """Before `warp.init()`: Warp's kernel cache inside the lmjx cache folder (if one is set)."""
+    import warp as wp
+
+    text = os.environ.get(ENV)
+    if text and text != OFF and wp.config.kernel_cache_dir is None:
+        wp.config.kernel_cache_dir = str(Path(text) / "warp")

@@ -1,0 +1,205 @@
+"""Values the stages exchange: an action, an observation, the interfaces of the planner's
+simulator and of the world actions are executed in, and the planner's configuration.
+
+The planner produces `Action`s and reads `Observation`s; a simulator (`lmjx.sim.cpu`,
+`lmjx.sim.gpu`) and an executor (the simulated "real" world `lmjx.sim.realworld`, or a real
+robot's backend) consume actions.  Defining them here lets the simulators and the planner
+meet without importing each other.  Nothing here computes anything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from lmjx.errors import ConfigError
+from lmjx.runtime.reprs import config_repr
+
+if TYPE_CHECKING:
+    from lmjx.sim.scenarios import Layout
+
+CONTROL_DT = 0.02  # the edges' control period [s]: an action's joint targets are this far apart
+
+
+@dataclass
+class Action:
+    """A planned action: joint targets q* and velocities qd* at the control rate."""
+
+    edge: int  # edge id in the bundle
+    q: np.ndarray  # (T, nq)
+    qd: np.ndarray  # (T, nq)
+    transit_steps: int  # the first transit_steps rows move to the edge's start
+    via_park: bool  # the transit is not the straight line (through the park pose, or the roadmap)
+    route: str = "direct"  # the transit: "direct", "park" (through the park pose), "roadmap"; "escape+" any of them
+    edge_states: int = -1  # the edge's states executed (fewer than its own where a fixed obstacle cuts it short)
+    edge_first: int = 0  # the edge's first state executed (`late_start`: its start in a fixed obstacle's margin)
+
+    @property
+    def duration(self) -> float:
+        return len(self.q) * CONTROL_DT
+
+
+@dataclass
+class Observation:
+    robot_q: np.ndarray  # (nq,) measured joint angles
+    objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
+    time: float  # seconds of execution so far
+    # what the last executed action did (a real backend reports what it can measure):
+    target_moved_m: float = float("nan")  # the target's displacement on the table [m]
+    transit_contacts: tuple[str, ...] = ()  # movable objects the arm came into contact with before
+    # the edge began (not those it was already touching when the transit began, until it has
+    # been `LEAVE_CLEAR` clear of them)
+    transit_hit_fixed: bool = False  # the arm came into contact with a fixed obstacle before the edge began
+    transit_left: tuple[str, ...] = ()  # objects and obstacles the arm was touching as the transit began
+
+
+class Executor(Protocol):
+    def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation: ...
+
+    def execute(self, action: Action) -> Observation: ...
+
+    def truth(self) -> np.ndarray:
+        """(n, 7) true object poses (for scoring trials; a real backend returns its best estimate)."""
+        ...
+
+
+SimRequest = tuple[np.ndarray, np.ndarray, list[Action]]  # robot_q (nj,), objects (n, 7), actions
+
+
+class Simulator(Protocol):
+    name: str  # "cpu", "cpu-near", "gpu"
+    prefers_batches: bool  # True where a batch of many costs about what one candidate does
+    steps_run: int
+
+    @property
+    def description(self) -> str: ...
+
+    def simulate(self, robot_q: np.ndarray, obj_qpos: np.ndarray, actions: list[Action]) -> np.ndarray:
+        """Final object qpos (len(actions), n_objects, 7) after each action and the settle time."""
+        ...
+
+    def simulate_many(self, requests: list[SimRequest]) -> list[np.ndarray]:
+        """`simulate` for several (robot_q, objects, actions) requests."""
+        ...
+
+
+ASMS = ("random", "lazy", "greedy")
+WHEN_STUCK = ("best", "options")
+SERVOS = ("playback", "robot")  # the planner simulator's servo models (`PlannerConfig.servo`)
+
+# rescoring's draws of the observed poses: the "real" world's observation noise
+# (`executor.SimulatedRealWorld`: x, y each N(0, 2 mm), yaw N(0, 1.5 deg))
+RESCORE_POS_NOISE = 0.002  # [m]
+RESCORE_YAW_NOISE = math.radians(1.5)  # [rad]
+OPTIONS_NEAR = 0.8  # when_stuck="options": candidates with at least this share of the most options qualify
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    asm: str = "greedy"
+    max_actions: int | None = None  # the action budget; None: the task set's (`Scenario.budget`)
+    max_planning_s: float = 600.0
+    greedy_candidates: int = 32
+    lazy_tries: int = 32
+    min_progress: float = 0.005  # "moved toward the goal": the distance drops by at least this [m]
+    target_margin: float = 0.01  # edges over cells within the target's half size + this [m]
+    goal_margin: float = 0.01  # stop once the observed target is this far inside the goal region [m]
+    futile_radius: float = 0.01  # an executed edge that made no progress is not offered again
+    # while the target stays within this distance of where it was [m]
+    # lmjx's refinements of the paper's ASMs, each of which can be turned off (`paper()`):
+    futile_filter: bool = True  # edges that failed here are not offered again (futile_radius)
+    path_score: bool = True  # "closest" = path length around the fixed obstacles (else straight distance)
+    lazy_fallback: bool = True  # Lazy takes its best simulated edge when none brings the target closer
+    lazy_cap: bool = True  # Lazy stops after lazy_tries simulations (the paper: no cap)
+    greedy_fraction: float | None = None  # Greedy's subset: this fraction of the edges over the
+    # target (at least one) instead of greedy_candidates
+    when_stuck: str = "best"  # Greedy when no candidate is predicted to bring the target min_progress
+    # closer: "best" takes the best predicted all the same (the paper's Greedy); "options" takes,
+    # among the candidates that keep every object on the table, the one whose predicted state
+    # leaves the most edges to offer (starts clear, acting on the target: `TransitPlanner.options`),
+    # the best predicted of those within OPTIONS_NEAR of the most
+    late_start: bool = False  # where the edges with clear starts give fewer candidates than
+    # wanted, an edge whose start lies within a fixed obstacle's margin is offered from its first
+    # state clear of the scene (`TransitPlanner.late_starts`), where that part still acts on the
+    # target; off: such an edge is not offered
+    push_weight: float = 1.0  # > 0: "closest" is the cost of the cheapest way to the goal, each
+    # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.planner.pushfield`:
+    # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`).
+    # 1 since 2026-11-27 (benchmarks/evaluation_plan_2026-11-27.md; 0 before)
+    rescore_top: int = 8  # > 0: Greedy simulates its this many best candidates again from
+    # rescore_draws - 1 more starts, every object's observed pose redrawn with the observation
+    # noise the "real" world's camera has (`RESCORE_POS_NOISE`, `RESCORE_YAW_NOISE`), and takes
+    # the one with the lowest mean score over the rescore_draws starts (the observed one
+    # included): a push whose outcome hangs on millimetres no longer wins on one lucky rollout.
+    # 8 since 2026-11-27 (0 before: benchmarks/evaluation_plan_2026-11-28.md, the fourteenth
+    # session's rule); 0: off
+    rescore_draws: int = 8
+    servo: str = "robot"  # the planner's simulator tracks the arm's joint targets with "robot":
+    # the robot's own joint servo gains and torque limits (`executor.real_gains`: the controller
+    # the arm runs, so a simulated push lags and overshoots as the arm's does), or "playback":
+    # stiff servos with unlimited torque (near-exact playback of the trajectory).  "robot" since
+    # 2026-11-27 (playback before: benchmarks/evaluation_plan_2026-11-28.md, the sixteenth
+    # session's rule)
+
+    __repr__ = config_repr
+
+    def validate(self) -> None:
+        if self.asm not in ASMS:
+            raise ConfigError(f"unknown action selection mechanism '{self.asm}'; use random, lazy or greedy")
+        if (self.max_actions is not None and self.max_actions < 1) or self.greedy_candidates < 1 or self.lazy_tries < 1:
+            raise ConfigError("max_actions, greedy_candidates and lazy_tries must be positive")
+        if self.greedy_fraction is not None and not 0.0 < self.greedy_fraction <= 1.0:
+            raise ConfigError(f"greedy fraction {self.greedy_fraction:g} must lie in (0, 1]")
+        if not (math.isfinite(self.push_weight) and self.push_weight >= 0.0):
+            raise ConfigError(f"push weight {self.push_weight:g} must be a number at least 0")
+        if self.push_weight > 0.0 and not self.path_score:
+            raise ConfigError(
+                "a push weight weighs the path-length score, which the paper's ASM settings replace by the "
+                "straight distance: leave out --push-weight or --asm-settings paper"
+            )
+        if self.rescore_top < 0:
+            raise ConfigError(f"the candidates to rescore must be at least 0, got {self.rescore_top}")
+        if self.rescore_draws < 2:
+            raise ConfigError(f"rescoring needs at least 2 starts a candidate (the observed one and a draw), got "
+                              f"{self.rescore_draws}")  # fmt: skip
+        if self.when_stuck not in WHEN_STUCK:
+            raise ConfigError(f"unknown rule when stuck '{self.when_stuck}'; use {' or '.join(WHEN_STUCK)}")
+        if self.servo not in SERVOS:
+            raise ConfigError(f"unknown servo model '{self.servo}'; use {' or '.join(SERVOS)}")
+
+    def paper(self) -> PlannerConfig:
+        """The ASMs as the paper states them (Algorithm 3): no futile-edge filter, the straight
+        distance to the goal, Lazy over all the edges over the target in random order with no
+        fallback (when none moves the target toward the goal: no action), Greedy on a uniform
+        subset of a quarter of them (no push weight: it weighs the path length, not used; no
+        rescoring: the paper's Greedy takes its best simulated candidate)."""
+        return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
+                       greedy_fraction=0.25, push_weight=0.0, rescore_top=0)  # fmt: skip
+
+    def settings(self, asm: str | None = None) -> dict:
+        """The refinements on or off, for the records of `asm` (default: this config's)."""
+        greedy = f"{self.greedy_candidates} candidates"
+        if self.greedy_fraction is not None:
+            greedy = f"{self.greedy_fraction:g} of the edges over the target"
+        return {
+            "futile_filter": self.futile_filter,
+            "path_score": self.path_score,
+            "lazy_fallback": self.lazy_fallback,
+            "lazy_tries": self.lazy_tries if self.lazy_cap else None,
+            "greedy_subset": greedy,
+            "when_stuck": self.when_stuck,
+            "late_start": self.late_start,
+            "push_weight": self.push_weight,
+            # (only Greedy's, and only when on: the records of runs before it existed read the same)
+            **(
+                {"rescore": f"best {self.rescore_top}, {self.rescore_draws} starts"}
+                if self.rescore_top and (asm or self.asm) == "greedy"
+                else {}
+            ),
+            # (only where not the playback, the only model before this setting existed, and only
+            # for the ASMs that simulate: as above)
+            **({"servo": self.servo} if self.servo != "playback" and (asm or self.asm) != "random" else {}),
+        }
