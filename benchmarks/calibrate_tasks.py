@@ -27,12 +27,12 @@ In parts, on many cores (each part a process; then merged and scored):
 
 With `--one-action RATES.json` (`one_action_rate.py`'s --out on the same calibration starts)
 each candidate also gets p1, its one-action rate from many first actions per start, and the
-seventh calibration's rule applies instead (benchmarks/evaluation_plan_2026-11-28.md): the
-chance of at least one one-action success in case 1's 3 x 15 trials, 1 - prod(1 - p1)^15, at
-least 0.95; then the smallest total gap to 2/3, the shorter distances, and the present goal size
-and budget (0.10, 30) if among the best:
+rule that chose the present paper tasks applies instead: the chance of at least one one-action
+success in case 1's 3 x 15 trials, 1 - prod(1 - p1)^15, at least 0.95 (a single trial per
+start makes the one-action count a rare, noisy event); then the smallest total gap to 2/3, the
+shorter distances, and the goal size and budget (0.10, 30) if among the best:
 
-    python benchmarks/calibrate_tasks.py --from-runs calibration.json --one-action rates.json --out seventh.json
+    python benchmarks/calibrate_tasks.py --from-runs calibration.json --one-action rates.json --out choice.json
 
 Selection rule (fixed before looking at the results): a goal size and a budget common to
 the three scenarios, a distance per scenario; the start never inside the goal (distance at
@@ -213,7 +213,7 @@ def add_p1(rows: list[dict], ends: dict[int, list[list[dict]]]) -> None:
 
 
 def choose_p1(rows: list[dict], trials: int, need: float = 0.95, per_cell: int = 15) -> dict:
-    """The seventh calibration's rule (module docstring) on case 1's rows, which carry p1."""
+    """The one-action rule (module docstring) on case 1's rows, which carry p1."""
     aim = 2 / 3 * trials
     best = None
     for h, b in itertools.product(HALVES, BUDGETS):
@@ -285,7 +285,7 @@ def main() -> None:
                     help="score the trials of earlier --out files again instead of running them (several: "
                          "the parts of one calibration, merged by trial seed)")  # fmt: skip
     ap.add_argument("--one-action", metavar="RATES",
-                    help="one_action_rate.py's --out on the same calibration starts: the seventh calibration's "
+                    help="one_action_rate.py's --out on the same calibration starts: the one-action "
                          "rule (a one-action success in case 1's 45 trials with chance 0.95)")  # fmt: skip
     args = ap.parse_args()
     robot = load_robot("panda")

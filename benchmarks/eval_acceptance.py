@@ -1,7 +1,8 @@
-"""Issue 19's acceptance, computed from `lmjx evaluate` results (results.json files).
+"""The evaluation's acceptance checks (docs/EVALUATION.md, "Protocol"), computed from `lmjx evaluate`
+results (results.json files).
 
-    python benchmarks/eval_acceptance.py --paper docs/eval_paper_gpu/results.json \
-        --hard docs/eval_hard_gpu/results.json [--paper docs/eval_paper_cpu/results.json ...] \
+    python benchmarks/eval_acceptance.py --paper docs/evaluation/paper_gpu/results.json \
+        --hard docs/evaluation/hard_gpu/results.json [--paper docs/evaluation/paper_cpu/results.json ...] \
         [--json OUT.json] [--report DIR]
 
 Prints, per run, the success and mean actions per successful trial of every cell, and then
@@ -11,7 +12,9 @@ one-action Random success), case 2's Greedy >= 70.6 %, the hard set's Greedy aga
 figures before the executable actions, and over every executed action of every run: transits
 that touched a fixed obstacle, transits that touched a movable object, and Random's actions
 that moved the target 1 cm or more.  --report DIR rewrites report.md and the plots of a
-results file in DIR (for a run that was stopped before its last trial)."""
+results file in DIR (for a run that was stopped before its last trial); --merge DEST DIR...
+joins the results of runs split in parts (`lmjx evaluate --part K/N`, one cell a process) into
+DEST and rewrites its report."""
 
 from __future__ import annotations
 
@@ -153,7 +156,7 @@ def main() -> None:
         nargs="+",
         metavar="DIR",
         help="write DEST/results.json (the first DIR) from the results.json of the others (runs of one task set "
-        "split by scenario, e.g. GPU_SPLIT=1 in gpu_session.sh), then rewrite DEST's report and stop; DEST's own "
+        "split by cell or part, e.g. lmjx evaluate --part K/N), then rewrite DEST's report and stop; DEST's own "
         "trials are kept unless a later DIR holds the same trial (a later DIR's record wins)",
     )
     ap.add_argument(
@@ -166,7 +169,6 @@ def main() -> None:
         dest, *srcs = (Path(d) for d in args.merge)
         merged: dict = {}
         # DEST's own trials first, so that merging new runs into it never drops what it held
-        # (the nineteenth session lost 82 trials that way, restored from a copy)
         own = (dest / "results.json").exists() and dest.resolve() not in {d.resolve() for d in srcs}
         kept = [dest] if own else []
         for d in kept + srcs:

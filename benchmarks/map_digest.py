@@ -1,8 +1,9 @@
 """A map's content digest: SHA-256 over every dataset (name, dtype, shape, bytes), leaving out
 the attributes (a build's timings and device differ between builds of the same map).
 
-Two builds with the same command and seed are the same map when their digests agree; the
-evaluation resumes an earlier session's trials only on maps with the digest it recorded.
+Two builds with the same command and seed are the same map when their digests agree; an
+evaluation split across machines or resumed on another one continues only on maps with the
+digest it recorded (docs/evaluation/README.md lists the present runs' digests).
 
     python benchmarks/map_digest.py [-v] maps/case1.h5 maps/case2.h5     (-v: each dataset's too)
 """

@@ -3,7 +3,7 @@ actions per start instead of one, on the calibration's seeds.
 
 The paper-set acceptance asks for a Random success in a single action in case 1.  The
 calibration (`calibrate_tasks.py`) runs one Random trial per seed, so its one-action count is a
-rare event in 60 trials (2 and 4 in scenarios 1 and 3 for the sixth calibration's tasks), a noisy estimate
+rare event in 60 trials (2 and 4 in scenarios 1 and 3 for tasks of 20 cm squares), a noisy estimate
 that its selection rule then picked the best of (the winner's curse).  Random's first action
 is uniform over the feasible edges over the target (its futile-edge filter is empty at a
 trial's start), so here each start gets up to K of them: the first K feasible in a seeded

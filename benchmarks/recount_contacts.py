@@ -9,11 +9,11 @@ checks this per action (the target's displacement, the distance to the goal afte
 transit's route and the edge's states executed must equal the record's, to its 0.1 mm
 rounding; once an action departs, every later one counts as departed) and counts the transit's
 contacts with the executor of this checkout, e.g. under a newer counting rule than the one
-the trial ran with (docs/EVALUATION.md: LEAVE_CLEAR).  Planning is not repeated: no
+the trial ran with (`lmjx.sim.realworld.LEAVE_CLEAR`; docs/EVALUATION.md, "Protocol").  Planning is not repeated: no
 simulator is needed, whatever ASM chose the edges.
 
-    python benchmarks/recount_contacts.py docs/eval_paper_gpu_1m/results.json ... \\
-        --maps maps1m --out recount.json [--part K/N]
+    python benchmarks/recount_contacts.py docs/evaluation/paper_gpu/results.json ... \\
+        --maps maps --out recount.json [--part K/N]
 
 The maps must be those the trials ran on (`benchmarks/map_digest.py`).  Each record is
 replayed once (records of the same trial in several files, e.g. Random's, shared by a GPU and
@@ -24,10 +24,10 @@ C MuJoCo.
 
 `--combine RECOUNT` replays nothing: it counts every action of the results once, taking the
 replay's count where RECOUNT replayed the record unchanged and the recorded one otherwise
-(trials run since, or run again):
+(trials run after the replay, or run again):
 
-    python benchmarks/recount_contacts.py --combine benchmarks/recount_1m_2026-11-26.json \\
-        docs/eval_{paper,hard}_{gpu,cpu}_1m/results.json --out combined.json
+    python benchmarks/recount_contacts.py --combine recount.json \\
+        docs/evaluation/*/results.json --out combined.json
 """
 
 from __future__ import annotations

@@ -157,7 +157,7 @@ def main() -> None:
         kernels = EdgeKernels(robot, reach.failure, config, args.edges, sharded=sharded)
         if samples is None:
             samples = sample_edges(reach, config, robot, 0, args.edges, kernels)
-        kernels.rollout._build()
+        kernels.rollout.compile()
         launches = _inputs(samples, kernels.rollout)
         secs = _compute_seconds(kernels.rollout, launches)
         name = "all_devices" if sharded else "one_device"

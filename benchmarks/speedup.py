@@ -1,8 +1,13 @@
 """The speed-up of a build on every GPU over one GPU, from the `--json` outputs of repeated
-runs (benchmarks/gpu_session.sh speedup5m): each run's seconds after compilation and to the
-finished file, then the ratios of the medians, the worst pairing, and the best.
+runs: each run's seconds after compilation and to the finished file, then the ratios of the
+medians, the worst pairing, and the best.  A file is named RUN_TAG.json: the runs of one RUN
+(a 1-GPU build, `--no-shard`, and an all-GPU build made one after the other) are paired.
 
-    python benchmarks/speedup.py out/gpu/speedup5m_*.json
+    for r in 1 2 3; do
+      lmjx build-map --failure case2 --edges 5000000 --no-shard --out a.h5 --json > out/s5m_${r}_1gpu.json
+      lmjx build-map --failure case2 --edges 5000000 --out b.h5 --json > out/s5m_${r}_all.json
+    done
+    python benchmarks/speedup.py out/s5m_*.json
 """
 
 from __future__ import annotations

@@ -1,13 +1,13 @@
 """Compute a map's push counts (`lmjx.planner.pushfield`, what `--push-weight` weighs the score by)
 for the scenarios of a task set, once, into lmjx's cache folder.
 
-Greedy and Lazy with a push weight (the default since 2026-11-27) need the counts of their
+Greedy and Lazy with a push weight (1 by default) need the counts of their
 map and scenario; each process computes them on first use and keeps them in the cache folder
 (`lmjx.planner.pushfield.cached_counts`).  An evaluation started as dozens of processes at once would
 compute them dozens of times side by side; run this first and they all find them there.
 Run it on the platform the evaluation runs on (the counts' key holds JAX's platform):
 
-    python benchmarks/warm_push_counts.py --map /tmp/lmjx_gpu/maps/case2.h5 --tasks hard --scenarios 1,2,3
+    python benchmarks/warm_push_counts.py --map maps/case2.h5 --tasks hard --scenarios 1,2,3
 """
 
 from __future__ import annotations
