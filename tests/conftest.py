@@ -2,8 +2,8 @@
 
 What is expensive is made once per test run and shared: every kernel is compiled at one
 shape (the shapes the commands use: the Reach-Ability map's IK program per failure, which
-the edges' start IK shares, and one rollout program per failure), the maps are session
-fixtures (`coarse`, `table1`, `table1_ur5e`, `small_map`, `tiny_map`, `tiny_atlas`, ...), and
+the edges' start IK shares, and one rollout program per failure), the maps are fixtures of
+the whole run (`scope="session"`: `coarse`, `table1`, `table1_ur5e`, `small_map`, `tiny_map`, ...), and
 commands run in this process (`cli`) unless what is tested needs a process of its own
 (`cli_process`: signals, several host devices or processes).  Compiled programs are kept in
 one cache folder for the whole run, subprocesses included (`LMJX_CACHE_DIR`: JAX's persistent compilation cache and the

@@ -1,4 +1,4 @@
-"""A newcomer's mistakes and missing optional parts (issue 21): each ends in one line and exit
+"""A newcomer's mistakes and missing optional parts: each ends in one line and exit
 2, or works where working is right; never a traceback.  Commands run in this process except
 where the setting must be there before MuJoCo or JAX starts (a process of its own)."""
 

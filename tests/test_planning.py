@@ -234,7 +234,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
             "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options",
             "late_start": True, "push_weight": 0.0, "servo": "robot"}  # fmt: skip
     assert out["asm_settings"]["when_stuck"] == "best" and out["asm_settings"]["late_start"] is False
-    assert out["asm_settings"]["servo"] == "robot"  # the default since 2026-11-27 (the ASMs' settings keep it)
+    assert out["asm_settings"]["servo"] == "robot"  # the default (the ASMs' settings keep it)
     assert paper["asm_settings"] == want
     for args, message in (
         (("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--failure", "case1"), "not case1"),
@@ -806,10 +806,9 @@ def paired_decisions(
     "real" world of that seed; the target's path length to the goal after each, and whether
     any transit touched a fixed obstacle.  `greedy_pick` replaces Greedy's choice among its
     simulated candidates (to show that the test notices); `greedy`: Greedy's settings apart
-    from the defaults.  (15 starts until 2026-11-27: with rescoring the default, one pair
-    there went from a tie to a loss, 12 wins to 3, p = 0.018; over 40 starts rescoring on and
-    off both win 29 to 4.  At 15 one pair decided the test.)  Greedy simulates with its
-    servo model (`PlannerConfig.servo`, "robot" by default since 2026-11-27)."""
+    from the defaults.  (Why 30 starts: at 15 a single pair decided the test, 12 wins to 3,
+    p = 0.018, with rescoring on; over 40 starts rescoring on and off both win 29 to 4.)
+    Greedy simulates with its servo model (`PlannerConfig.servo`, "robot" by default)."""
     from lmjx.evaluation.trial import planner_physics
     from lmjx.planner.edge_planner import Planner
 
@@ -1085,7 +1084,7 @@ def test_a_jammed_arm_escapes_without_going_deeper(robot, plan_map, monkeypatch)
 
 
 # the hard set's trial 1005 (case 1, clutter, Greedy), after its first push: where the arm
-# stood and the objects as the planner observed them (benchmarks/replay_1005_2026-11-27)
+# stood and the objects as the planner observed them (recorded by replaying the trial)
 WEDGE_Q = [-2.094585191469385, -0.38554973939259163, 2.877191123935564, -2.5755576106222784,
            0.00039133548716256667, 2.9814477112460755, 0.7860328914256102]  # fmt: skip
 WEDGE_OBJECTS = [
@@ -1372,7 +1371,7 @@ def test_a_report_says_the_settings_its_trials_ran_with():
 
     config = EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=0.0))
     weighted = PlannerConfig(push_weight=1.0).settings()
-    assert PlannerConfig().settings() == weighted  # (the default since 2026-11-27)
+    assert PlannerConfig().settings() == weighted  # (the default)
     one = _settings_lines([{"asm": "greedy", "asm_settings": weighted}] * 2, config)
     assert one == [_settings_lines([], EvalConfig(tasks="hard", planner=PlannerConfig(push_weight=1.0)))[0]]
     assert "push_weight 1.0" in one[0]

@@ -106,7 +106,7 @@ def _same_results(a: np.ndarray, b: np.ndarray) -> None:
     the last bits of a solve, vary between launches): nearly every coordinate the same, and
     a candidate whose outcome turns on a contact chain within 2 cm (measured on an H100,
     2026-11-23: six default runs of the same two candidates ended up to 1.05 cm apart, the
-    runs split between two outcomes; benchmarks/RESULTS.md, issue 18)."""
+    runs split between two outcomes)."""
     if not CUDA:
         np.testing.assert_allclose(a, b, atol=1e-5)
         return

@@ -120,7 +120,7 @@ def test_a_transit_stops_at_its_corner_and_the_real_arm_follows_it(robot):
     the arm comes to rest at the corner and keeps within a few millimetres of the planned
     path while the transit lasts, where the same pieces at constant speed overshoot the turn
     by about three times as much.  (On seeded random corners the gain is smaller, 0-35 %;
-    on the ninth session's roof contact it is 2.5 cm: benchmarks/transit_clearance_replay.py.)"""
+    on a hard-tunnel transit that touched the roof at constant speed it is 2.5 cm.)"""
     failure = parse_failure("case2", robot)
     tp = TransitPlanner(robot, failure)
     # a right-angle turn at full speed: the base joint, then the shoulder (case 2 locks J6, J7)

@@ -91,7 +91,7 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         "object's observed pose redrawn by the camera's noise (2 mm, 1.5 deg), and takes the one whose mean score "
         "over all its starts is lowest (a push whose outcome hangs on millimetres no longer wins on one lucky "
         "rollout; N x (K - 1) more rollouts a decision); default 8 (0 with --asm-settings paper); 0: off "
-        "(docs/EVALUATION.md, the fourteenth session)",
+        "(why: docs/EVALUATION.md, its method changes)",
     )
     p.add_argument(
         "--rescore-draws",
@@ -107,7 +107,7 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         help="how the planner's simulator tracks the arm's joint targets: robot (default: the robot's own joint "
         "servo gains and torque limits, as its controller tracks them: simulated pushes lag and overshoot as the "
         "arm's do) or playback (stiff servos with unlimited torque, the trajectory played back nearly exactly; "
-        "the only model before 2026-11-27; docs/EVALUATION.md, the sixteenth session)",
+        "why the default: docs/EVALUATION.md, its method changes)",
     )
     _add_sim(p)
 

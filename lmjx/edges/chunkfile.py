@@ -9,7 +9,7 @@ A file is a header and the chunk's arrays, raw, each starting at a multiple of 6
 
 The header holds the chunk's counts and, per array, its dtype, shape, offset in the file and
 CRC-32, which catches a damaged array on reading.  Raw, not compressed: on 2 H200s
-(benchmarks/RESULTS.md, issue 10) deflating the arrays on saving and inflating them again
+(benchmarks/RESULTS.md) deflating the arrays on saving and inflating them again
 in the writing process took about 55 CPU-seconds of a 5M-edge build, for a partial folder
 0.6 of the size.  Writing hands numpy's buffers straight to the file (the interpreter lock
 is released while the kernel copies them), reading fills one buffer the arrays are views

@@ -9,7 +9,7 @@ The writing process (`writer_process`: a clean interpreter, with its own interpr
 lock) reads the chunk files ahead on a few threads, appends them in order to
 `<partial>/map-<pid>.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
 threads), and at the end sorts the spatial index from the chunk files.  Measured on 2 H200s
-(benchmarks/RESULTS.md, issue 10): in the build's process, beside some 45 busy threads, the
+(benchmarks/RESULTS.md): in the build's process, beside some 45 busy threads, the
 HDF5 writes waited on the interpreter lock and on h5py's lock in turn, and the map writer
 set a 2-GPU build's pace; in a process of its own they do not compete with the rollouts'
 host work.
@@ -115,7 +115,7 @@ class MapWriter:
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
         most = max((b - a for a, b in todo), default=1)
         # pack jobs, in order: per device, a chunk's units and 4 more (on 2 H200s, 6 in all
-        # kept the packers from keeping up: benchmarks/RESULTS.md, issue 10)
+        # kept the packers from keeping up: benchmarks/RESULTS.md)
         self.queue: queue.Queue = queue.Queue(maxsize=devices * (-(-most // PACK_EDGES) + 4))
         self.error: BaseException | None = None  # what stopped the packers or the feeder
         self.stop = threading.Event()  # the feeder's stop (abort)

@@ -173,13 +173,13 @@ def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple
 # The interpreter's thread switch interval during a build.  Python's default, 5 ms, lets a
 # thread back from a C call that released the interpreter lock (a copy, a file write, a
 # device wait) wait up to 5 ms for it while a dozen others run Python code; measured on 2
-# H200s (benchmarks/RESULTS.md, issue 10): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
+# H200s (benchmarks/RESULTS.md): the 2-GPU edge loop 12.4 s at 5 ms, 9.8 s at
 # 0.5 ms; one GPU's unchanged.
 SWITCH_INTERVAL = 0.0005
 # Chunk threads per device in one process, and chunks per device submitted beyond them
 # (queued, or done and not yet handed over), for one device and for several: while one thread's chunk
 # runs on its device, the others draw, copy and place theirs.  Measured on 2 H200s
-# (benchmarks/RESULTS.md, issue 10), 5M edges after compilation: 2 GPUs 10.3-10.5 s with
+# (benchmarks/RESULTS.md), 5M edges after compilation: 2 GPUs 10.3-10.5 s with
 # (2, 0), 8.7 s with (3, 1); 1 GPU 17.1-17.7 s with (2, 0), 15.1 s with 3 threads, but then
 # 8.5 GB of host memory, over the 8 GB a one-GPU 5M-edge build keeps to.
 CHUNK_THREADS = {"one": (2, 0), "several": (3, 1)}  # (threads, ahead)

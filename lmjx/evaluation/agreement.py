@@ -39,7 +39,7 @@ from lmjx.types import Observation, Simulator
 
 GAP_OK = 0.01  # [m] a pick this close to the best by the reference's score counts as the same choice
 # The agreement test's maps and decisions (tests/test_simulate_gpu.py), chosen before its
-# first out-of-sample run (2026-11-23) and used nowhere before: maps built with seed 2026 (the
+# first out-of-sample run and used nowhere else: maps built with seed 2026 (the
 # evaluation's and earlier agreement runs' maps have seed 0); decisions from trial seeds
 # 500-511 ("real" worlds and layouts 10,500-10,511; the earlier runs: 0-11 and 10,000-10,011;
 # the evaluation's trials: 1,000-3,014).  Its pass, set then and not moved since: at least

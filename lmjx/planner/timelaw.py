@@ -4,7 +4,7 @@ A transit is a chain of straight lines in joint space (to the park pose and down
 waypoints, a retreat), each checked at constant speed by `lmjx.planner.transit.TransitPlanner`, and
 executed by joint servos (`lmjx.planner.transit.controls`).  Followed at constant speed, the chain
 turns at full speed at every corner; the real arm's servos then overshoot the turn (0.05-0.07
-rad at 1.3 rad/s in the ninth session's trial 2011: a link against the tunnel's roof where the
+rad at 1.3 rad/s on a hard-tunnel trial: a link against the tunnel's roof where the
 plan kept 3 cm, more than the transits' 2 cm margin absorbs).
 
 `retime` keeps the path and changes only when each point of it is reached: the path is cut
@@ -12,7 +12,7 @@ at its corners (where the planned joint velocity changes by more than CORNER_JUM
 control steps: a turn, or a change of speed), and between corners the arm follows the path as
 planned, except that it slows to rest into every corner and speeds up out of it along a half
 cosine over RAMP (the acceleration continuous, zero at rest).  Gentle bends (a path sampled
-along a curve, the way back along the arm's trail) are followed at speed as before: stopping
+along a curve, the way back along the arm's trail) are followed at the planned speed: stopping
 at each would make the arm lurch at the servos' own frequency.  The transit's start and end
 are left as they were (it leaves from rest; it hands over to the edge at speed), so the
 arm does not stop just short of the objects an edge starts near.  Pure functions of arrays.

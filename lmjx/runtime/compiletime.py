@@ -7,7 +7,7 @@ tracing, which JAX before 0.10 reports again for every nested jit, and which tak
 per cent of a kernel's compilation) and the
 GPU simulator's CUDA graphs with MuJoCo Warp's kernels (its `capture_seconds`, read with
 `simulator_compile_seconds`).  On the GPU this took 173-175 s of a first decision
-(docs/EVALUATION.md), charged until then to the trial that made it and counted against its
+(benchmarks/RESULTS.md); charged to the trial that made it, it would count against its
 planning limit.  Compilation is not planning: `Planner` subtracts what was compiled while
 it computed or simulated from the decision's planning time and records it apart
 (`StepRecord.compile_s`).

@@ -181,8 +181,8 @@ class PaperTask:
     angle: float  # [deg]
 
 
-# Chosen by calibration (Random only, calibration seeds; docs/EVALUATION.md, "The paper's
-# task set"; benchmarks/calibrate_tasks.py); never tuned on the evaluation's seeds.
+# Chosen by calibration (Random only, calibration seeds; docs/EVALUATION.md, "Deviations from the
+# paper"; benchmarks/calibrate_tasks.py); never tuned on the evaluation's seeds.
 PAPER_TASKS = {1: PaperTask(0.15, 0.08, 90.0), 2: PaperTask(0.17, 0.08, 90.0), 3: PaperTask(0.13, 0.08, 0.0)}
 PAPER_BUDGET = 30
 
