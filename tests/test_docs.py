@@ -3,7 +3,7 @@
 The blocks of one page run in order, in one namespace, in a temporary working directory.
 The files the text says a command writes are put there first, smaller but made the same
 way: `maps/case2.h5` (what `make run` writes: `lmjx build-map --failure case2`) is the
-session's shared case-2 map (`small_map`: the same command with 5 cm cells and 3,000 edges),
+test run's shared case-2 map (`small_map`: the same command with 5 cm cells and 3,000 edges),
 and `maps/atlas.h5` (what `lmjx atlas` writes) the four-joint test arm's small atlas
 (`tiny_atlas`).  Blocks that compute run on the small settings their text gives (10 cm
 cells, 200 edges, a budget of 3 actions).  Shell commands are in ```bash blocks and are not
@@ -90,3 +90,154 @@ def test_api_docstring_examples_run(docs_dir: Path) -> None:
             tried += len(test.examples)
             runner.run(test)
     assert tried > 0 and runner.failures == 0, f"{runner.failures} of {tried} examples failed (see the output)"
+
+
+# ------------------------------------------------------------------ links and the tree's words
+
+# The pages whose relative links (files, images, `#anchor`s) must resolve.
+LINKED_PAGES = (
+    "README.md",
+    "docs/DETAILS.md",
+    "docs/ROBOTS.md",
+    "docs/EVALUATION.md",
+    "docs/evaluation/README.md",
+    "maps/README.md",
+    "benchmarks/README.md",
+)
+FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)
+INDENTED_CODE = re.compile(r"(?:^(?: {4}|\t).*\n)+", re.M)
+CODE_SPAN = re.compile(r"`[^`\n]*`")
+LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(([^()\s]+)(?:\s+\"[^\"]*\")?\)")
+
+
+def github_slug(heading: str) -> str:
+    """The anchor GitHub gives a heading: lower case, punctuation but '-' and '_' dropped,
+    spaces to '-'."""
+    text = re.sub(r"[`*]", "", heading.strip()).lower()
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def anchors(page: Path) -> set[str]:
+    """Every heading's anchor on a page (a repeated heading gets -1, -2, ... as on GitHub)."""
+    out: set[str] = set()
+    for heading in re.findall(r"^#{1,6} +(.+?) *#*$", FENCE.sub("", page.read_text()), re.M):
+        slug, n = github_slug(heading), 1
+        while slug in out:
+            slug = f"{github_slug(heading)}-{n}"
+            n += 1
+        out.add(slug)
+    return out
+
+
+def relative_links(page: Path) -> list[str]:
+    """The link and image targets of a page's text (code blocks and code spans left out),
+    other than web and mail addresses."""
+    text = CODE_SPAN.sub("", INDENTED_CODE.sub("", FENCE.sub("", page.read_text())))
+    return [t for t in LINK.findall(text) if not re.match(r"[a-z][a-z0-9+.-]*:", t)]
+
+
+def test_github_slugs_and_link_parsing() -> None:
+    """The checker itself: slugs as GitHub makes them, links found in text and not in code."""
+    assert github_slug("Table I, reproduced") == "table-i-reproduced"
+    assert github_slug("The test suite and `make run`") == "the-test-suite-and-make-run"
+    assert github_slug("Deviations from the paper, and why") == "deviations-from-the-paper-and-why"
+    assert github_slug("Maps of 1,000,000 edges (2026-11-25)") == "maps-of-1000000-edges-2026-11-25"
+    page = "see [a](x.md#b), ![img](img/y.png), [web](https://e.org)\n\n    [code](no.md)\n\n`[span](no.md)`\n"
+    text = CODE_SPAN.sub("", INDENTED_CODE.sub("", FENCE.sub("", page)))
+    assert LINK.findall(text) == ["x.md#b", "img/y.png", "https://e.org"]
+
+
+@pytest.mark.parametrize("page", LINKED_PAGES)
+def test_relative_links_resolve(page: str) -> None:
+    """Every relative link and image of the page names a file of the repository, and every
+    `#anchor` a heading of the page it points into."""
+    path = ROOT / page
+    links = relative_links(path)
+    assert links, f"{page} has no relative links"
+    broken = []
+    for link in links:
+        target, _, anchor = link.partition("#")
+        dest = (path.parent / target).resolve() if target else path
+        if not dest.exists():
+            broken.append(f"{link}: no such file")
+        elif anchor and (dest.suffix != ".md" or anchor not in anchors(dest)):
+            broken.append(f"{link}: no heading '{anchor}' in {dest.relative_to(ROOT)}")
+    assert not broken, f"{page}: " + "; ".join(broken)
+
+
+# How the project was developed is not the product's business: code, help, tests and docs say
+# what the software does and why (commit messages keep the history).  The words that tell of
+# it, as the project's acceptance greps for them, case-insensitive:
+HISTORY = re.compile(
+    r"session|issue ?#?[0-9]|device machine|device time|calibration (seven|seventh|sixth|fifth)"
+    r"|the [a-z]+th session|since 2026|before 2026",
+    re.I,
+)
+SCANNED = (".py", ".md", ".sh", ".toml")
+# What the word "session" may still mean, each where it is used: (files, the phrase).  Every
+# allowance must be in use (an unused one is to be removed).
+ALLOWED = (
+    ("tests/*.py", r'scope="session"'),  # pytest's fixture scope
+    ("docs/DETAILS.md", r'scope="session"'),
+    ("tests/conftest.py", r"request\.session\."),  # pytest's Session
+    ("lmjx/edges/mapwriter.py", r"start_new_session=True"),  # an OS process session (setsid)
+    ("lmjx/edges/mapwriter.py", r"\ba session of its own\b"),
+    # the atlas file's run record: `sessions`, one entry per process run that built part of it
+    ("lmjx/reach/atlas.py", r'"sessions"|\bsession\b'),
+    ("lmjx/cli/atlas.py", r'"sessions"|\bsession\b'),
+    ("maps/README.md", r"`sessions`"),
+)
+THIS_FILE = Path(__file__).resolve()
+
+
+def scanned_files() -> list[Path]:
+    """The repository's source and documentation files (git's tracked and untracked-but-not-
+    ignored files where git is there, else every file outside virtual environments and caches)."""
+    import subprocess
+
+    try:
+        names = subprocess.run(
+            ["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.splitlines()
+        files = [ROOT / n for n in names]
+    except (OSError, subprocess.CalledProcessError):
+        skip = {".git", ".venv", "venv", "__pycache__", ".pytest_cache", ".ruff_cache", "build", "dist"}
+        files = [p for p in ROOT.rglob("*") if not skip & set(p.relative_to(ROOT).parts)]
+    return sorted(p for p in files if p.suffix in SCANNED and p.is_file() and p.resolve() != THIS_FILE)
+
+
+def history_hits(files: list[Path]) -> tuple[list[str], set[int]]:
+    """Lines that still match HISTORY once the allowed phrases of their file are taken out,
+    and which allowances were used."""
+    hits, used = [], set()
+    for path in files:
+        rel = path.relative_to(ROOT).as_posix()
+        mine = [(i, a) for i, (glob, a) in enumerate(ALLOWED) if Path(rel).match(glob)]
+        for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            if not HISTORY.search(line):
+                continue
+            rest = line
+            for i, allowed in mine:
+                rest, k = re.subn(allowed, "", rest)
+                if k:
+                    used.add(i)
+            if HISTORY.search(rest):
+                hits.append(f"{rel}:{n}: {line.strip()[:120]}")
+    return hits, used
+
+
+def test_no_development_history_in_the_tree() -> None:
+    """No "session", "issue N", "device time", "the seventh calibration", "since 2026-..." in
+    the code, help, tests or docs, but for pytest's session scope, OS process sessions and the
+    atlas file's record of its runs; every allowance is in use and the words are found where
+    they are planted."""
+    for planted in ("the seventeenth session", "Issue 19's acceptance", "issue #7", "1,279 s of device time",
+                    "the calibration seventh", "the default since 2026-11-27", "on the device machine"):  # fmt: skip
+        assert HISTORY.search(planted), planted
+    files = scanned_files()
+    names = {p.relative_to(ROOT).as_posix() for p in files}
+    assert len(files) > 150 and {"README.md", "lmjx/types.py", "tests/conftest.py", "pyproject.toml"} <= names
+    hits, used = history_hits(files)
+    assert not hits, "development history in the tree:\n" + "\n".join(hits)
+    unused = [ALLOWED[i] for i in range(len(ALLOWED)) if i not in used]
+    assert not unused, f"allowances no longer in use (remove them): {unused}"
