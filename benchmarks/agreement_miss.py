@@ -26,7 +26,7 @@ from lmjx.evaluation.agreement import decision_states
 from lmjx.evaluation.trial import make_simulator
 from lmjx.planner.goalfield import GoalField
 from lmjx.planner.scoring import score, table_bounds
-from lmjx.sim.scenarios import scenario
+from lmjx.sim.scenarios import resolve_task, scenario
 
 
 def main() -> None:
@@ -46,11 +46,11 @@ def main() -> None:
         sys.exit("agreement_miss: no such decision (fewer than 2 candidates there, or the trial stopped earlier)")
     d = found[0]
     sc = scenario(args.scenario, robot.profile.task_scale, "hard")
-    ref_sim = make_simulator(robot, args.scenario, "cpu", "hard")
+    ref_sim = make_simulator(robot, resolve_task(args.scenario, robot, "hard"), "cpu")
 
     def warp(n: int):  # MuJoCo Warp, one batch of n on another device
         cfg = GpuSimConfig(device=args.device, buckets=(n,)) if args.device else None
-        return make_simulator(robot, args.scenario, "gpu", "hard", gpu_config=cfg)
+        return make_simulator(robot, resolve_task(args.scenario, robot, "hard"), "gpu", gpu_config=cfg)
 
     req = [(d.observation.robot_q, d.observation.objects, d.actions)]
     ref, new = ref_sim.simulate_many(req)[0], warp(len(d.actions)).simulate_many(req)[0]

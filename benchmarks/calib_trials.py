@@ -25,6 +25,7 @@ from lmjx.evaluation.trial import run_trial, setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
 from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 
@@ -50,7 +51,8 @@ def main() -> None:
         seed = trial_seed(CAL_BASE, args.scenario, t)
         cfg = PlannerConfig(asm=args.asm, greedy_candidates=args.candidates, max_actions=args.max_actions)
         t0 = time.perf_counter()
-        r = run_trial(setup_trial(robot, m, args.scenario, cfg, seed=seed, transits=transits, tasks=args.tasks))
+        task = resolve_task(args.scenario, robot, args.tasks)
+        r = run_trial(setup_trial(robot, m, task, cfg, seed=seed, transits=transits))
         steps = [s for s in r.steps if s.edge >= 0]
         line = {
             "seed": seed,

@@ -27,6 +27,7 @@ from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
 from lmjx.planner.edge_planner import edges_over_target
 from lmjx.planner.transit import TransitPlanner
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 
@@ -45,7 +46,8 @@ def main() -> None:
         TransitPlanner.escape = lambda self, q_now: None
     robot = load_robot("panda")
     m = load_map(f"{args.maps}/{args.failure}.h5")
-    st = setup_trial(robot, m, args.scenario, PlannerConfig(asm="random"), seed=args.seed, tasks=args.tasks)
+    task = resolve_task(args.scenario, robot, args.tasks)
+    st = setup_trial(robot, m, task, PlannerConfig(asm="random"), seed=args.seed)
     p, tp = st.planner, st.planner.transits
     obs = st.world.reset(st.layout, tp.park)
     trail = obs.robot_q[None].copy()

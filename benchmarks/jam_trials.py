@@ -15,6 +15,7 @@ import sys
 from lmjx.evaluation.trial import run_trial, setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 folder = os.environ.get("LMJX_MAPS", "/tmp/ev")
@@ -23,7 +24,7 @@ maps = {f: load_map(f"{folder}/{f}.h5") for f in ("case1", "case2")}
 for spec in sys.argv[1:]:
     f, sc, seed, n, tasks = spec.split(":")
     cfg = PlannerConfig(asm="random", max_actions=int(n) + 3)
-    r = run_trial(setup_trial(robot, maps[f], int(sc), cfg, seed=int(seed), tasks=tasks))
+    r = run_trial(setup_trial(robot, maps[f], resolve_task(int(sc), robot, tasks), cfg, seed=int(seed)))
     steps = [s for s in r.steps if s.edge >= 0]
     print(json.dumps({"trial": spec, "end": r.reason, "actions": r.actions,
                       "contacts": sum(bool(s.transit_contacts) for s in steps),

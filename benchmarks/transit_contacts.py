@@ -20,6 +20,7 @@ from lmjx.evaluation.trial import setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
 from lmjx.planner import transit as acts
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 
@@ -41,7 +42,8 @@ def main() -> None:
         for spec in args.trials:
             f, sc, seed, asm, tasks = spec.split(":")
             maps.setdefault(f, load_map(f"{args.maps}/{f}.h5"))
-            st = setup_trial(robot, maps[f], int(sc), PlannerConfig(asm=asm), seed=int(seed), tasks=tasks)
+            task = resolve_task(int(sc), robot, tasks)
+            st = setup_trial(robot, maps[f], task, PlannerConfig(asm=asm), seed=int(seed))
             planner, world = st.planner, st.world
             execute = world.execute
 

@@ -19,6 +19,7 @@ from lmjx.evaluation.trial import run_trial, setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
 from lmjx.planner import transit as acts
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 _orig = acts.TransitPlanner.actions
@@ -54,7 +55,8 @@ def main() -> None:
     for spec in sys.argv[2:]:
         f, sc, seed, asm, tasks = spec.split(":")
         maps.setdefault(f, load_map(f"{sys.argv[1]}/{f}.h5"))
-        r = run_trial(setup_trial(robot, maps[f], int(sc), PlannerConfig(asm=asm), seed=int(seed), tasks=tasks))
+        task = resolve_task(int(sc), robot, tasks)
+        r = run_trial(setup_trial(robot, maps[f], task, PlannerConfig(asm=asm), seed=int(seed)))
         steps = [s for s in r.steps if s.edge >= 0]
         print(
             json.dumps(

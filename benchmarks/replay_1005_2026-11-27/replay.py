@@ -27,6 +27,7 @@ from lmjx.model.robot import load_robot
 from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN
 from lmjx.planner.escape import ESCAPE_STEP
 from lmjx.planner.transit import after_executing
+from lmjx.sim.scenarios import resolve_task
 from lmjx.types import PlannerConfig
 
 EDGE, SEED, SCENARIO = 12990, 1005, 1
@@ -35,7 +36,8 @@ EDGE, SEED, SCENARIO = 12990, 1005, 1
 def main() -> None:
     robot = load_robot()
     m = load_map(sys.argv[1])
-    st = setup_trial(robot, m, SCENARIO, PlannerConfig(asm="greedy", greedy_candidates=32), SEED, tasks="hard")
+    task = resolve_task(SCENARIO, robot, "hard")
+    st = setup_trial(robot, m, task, PlannerConfig(asm="greedy", greedy_candidates=32), SEED)
     p, tp = st.planner, st.planner.transits
     obs = st.world.reset(st.layout, tp.park)
     tp.set_scene(p.sc, obs.objects)
@@ -70,7 +72,7 @@ def main() -> None:
 
     for servo in ("playback", "robot"):
         tp.set_scene(p.sc, obs.objects)
-        pred = make_simulator(robot, SCENARIO, "cpu", "hard", servo=servo).simulate(obs.robot_q, obs.objects, [act])[0]
+        pred = make_simulator(robot, task, "cpu", servo=servo).simulate(obs.robot_q, obs.objects, [act])[0]
         tp.set_scene(p.sc, pred)
         end = path[-1]
         slack = np.round(tp.scene_slacks(end[None])[0], 4)
