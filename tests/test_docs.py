@@ -90,3 +90,20 @@ def test_api_docstring_examples_run(docs_dir: Path) -> None:
             tried += len(test.examples)
             runner.run(test)
     assert tried > 0 and runner.failures == 0, f"{runner.failures} of {tried} examples failed (see the output)"
+
+
+def test_planner_page_lists_every_lever() -> None:
+    """docs/PLANNER.md has a row for every key of the planner's configuration, with its default
+    as `--help-levers` gives it, and every option that moved."""
+    from dataclasses import fields
+
+    from lmjx.cli.plan import MOVED
+    from lmjx.evaluation.levers import keys, toml_text
+    from lmjx.types import PlannerConfig
+
+    text = (ROOT / "docs" / "PLANNER.md").read_text()
+    defaults = {f.name: f.default for f in fields(PlannerConfig)} | {"asm_settings": "lmjx"}
+    for key in keys():
+        assert f"| `{key}` | `{toml_text(defaults[key])}` |" in text, key
+    for option, key, _ in MOVED:
+        assert f"| `{option}" in text and f"`--set {key}=" in text, option

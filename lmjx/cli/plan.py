@@ -1,8 +1,8 @@
 """`lmjx plan`: one manipulation task with simulation in the loop (paper Algorithm 3); and the
 planner's options `lmjx evaluate` shares: the everyday ones, and the planner's levers, given as
 keys of its configuration (`--planner-config FILE`, `--set KEY=VALUE`, `--help-levers`:
-`lmjx.evaluation.levers`).  The options that each set one lever are still accepted, hidden from
---help, and say in one line on stderr where they moved."""
+`lmjx.evaluation.levers`).  The options that each set one lever (`MOVED`) are accepted, hidden
+from --help, and say in one line on stderr which key they set."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def _nonnegative_float(text: str) -> float:
     return value
 
 
-# Options that set one lever each, now keys of the planner's configuration: (option, key, how argparse reads it)
+# Options that each set one lever, hidden from --help (the key says the same): (option, key, how argparse reads it)
 MOVED: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("--asm-settings", "asm_settings", {"choices": ("lmjx", "paper")}),
     ("--when-stuck", "when_stuck", {"choices": ("best", "options")}),
@@ -49,9 +49,14 @@ class _HelpLevers(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:  # fmt: skip
+        import os
+
         from lmjx.evaluation.levers import levers_text
 
-        print(levers_text())
+        try:
+            print(levers_text(), flush=True)
+        except BrokenPipeError:  # (`lmjx plan --help-levers | head`): not an error
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         parser.exit()
 
 
@@ -124,7 +129,7 @@ def planner_levers(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def moved_notes(args: argparse.Namespace) -> list[str]:
-    """One line per moved option given, saying how it is set now."""
+    """One line per option of one lever given, saying how its key is set."""
     return [
         f"lmjx {args.command}: note: {option} moved to --set {key}={_text(getattr(args, key))}"
         for option, key, _ in MOVED

@@ -192,7 +192,7 @@ def planner_config(asm: str, sim: str, levers: Mapping[str, Any] | None = None) 
     return config
 
 
-def _toml(value: Any) -> str:
+def toml_text(value: Any) -> str:
     if value is None:
         return "none"
     if isinstance(value, bool):
@@ -215,7 +215,7 @@ def levers_text(width: int = 80) -> str:
     for key in keys():
         meaning = PRESET_MEANING if key == PRESET else _METADATA[key]["meaning"]
         default = "lmjx" if key == PRESET else defaults[key]
-        lines.append(f"{key} = {_toml(default)}")
+        lines.append(f"{key} = {toml_text(default)}")
         lines += textwrap.wrap(f"{meaning}; takes {_takes(key)}", width, initial_indent="    ",
                                subsequent_indent="    ")  # fmt: skip
     return "\n".join(lines)

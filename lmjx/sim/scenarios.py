@@ -24,7 +24,9 @@ tunnel's length) about the robot's base by the robot's `task_scale`, so that the
 scenarios sit at the same place in the reach of an arm of another size (objects keep their
 sizes).  `sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
 uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of its nominal pose,
-keeping objects apart.  Nothing here simulates; `lmjx.sim.scene` builds the MuJoCo models.
+keeping objects apart.  `resolve_task` makes a scenario of a task set, placed for a robot, a
+`Task`: the value the entry points make once and every stage below them takes.  Nothing here
+simulates; `lmjx.sim.scene` builds the MuJoCo models.
 """
 
 from __future__ import annotations
@@ -212,19 +214,14 @@ def paper_variant(sc: Scenario, task: PaperTask, budget: int) -> Scenario:
                    budget=budget, description=desc)  # fmt: skip
 
 
-def check_scenario(number: int, tasks: str = "paper") -> None:
-    """Refuse, in one line, a scenario number or a task set that does not exist."""
-    if number not in SCENARIOS:
-        raise ConfigError(f"scenario {number!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
-    if tasks not in TASK_SETS:
-        raise ConfigError(f"unknown task set '{tasks}'; use paper or hard")
-
-
 def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
     """Scenario `number` (1, 2, 3) of the task set `tasks` ("paper" or "hard"), with its table
     positions scaled by `scale` about the robot's base (a robot's `profile.task_scale`; 1
     for the Panda)."""
-    check_scenario(number, tasks)
+    if number not in SCENARIOS:
+        raise ConfigError(f"scenario {number!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
+    if tasks not in TASK_SETS:
+        raise ConfigError(f"unknown task set '{tasks}'; use paper or hard")
     if not (math.isfinite(scale) and 0.2 <= scale <= 5.0):
         raise ConfigError(f"scenario scale {scale:g} is out of range (0.2 to 5)")
     sc = SCENARIOS[number]()
