@@ -41,6 +41,7 @@ from lmjx.evaluation.evaluate import load_maps
 from lmjx.evaluation.trial import make_simulator
 from lmjx.model.robot import load_robot
 from lmjx.runtime.fileio import write_text_atomic
+from lmjx.sim.scenarios import resolve_task
 
 
 def setup(prog: str, failures: tuple[str, ...], maps_dir: Path | None, warp: bool = True) -> tuple:
@@ -109,8 +110,8 @@ def main() -> None:
     report = out_of_sample(
         robot,
         maps,
-        {s: make_simulator(robot, s, "gpu", "hard", gpu_config=cfg) for s in (1, 2, 3)},
-        {s: make_simulator(robot, s, "cpu", "hard") for s in (1, 2, 3)},
+        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "gpu", gpu_config=cfg) for s in (1, 2, 3)},
+        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "cpu") for s in (1, 2, 3)},
         args.seeds,
         built=built,
     )

@@ -12,7 +12,8 @@ wires the library together: the work is in `lmjx.edges.stream` and `lmjx.evaluat
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +22,9 @@ from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.failure import Failure, as_failure
 from lmjx.model.robot import Robot, as_robot
 from lmjx.planner.records import StepRecord, TrialResult
-from lmjx.types import PlannerConfig
+from lmjx.sim.scenarios import Task
 
 DEVICES = ("auto", "cpu", "gpu")
-TASK_SETS = ("paper", "hard")
-ASM_SETTINGS = ("lmjx", "paper")
 
 
 def use_device(device: str = "auto") -> str:
@@ -238,94 +237,44 @@ class PlanResult:
         }
 
 
-def planner_config(
-    asm: str,
-    sim: str,
-    max_actions: int | None = None,
-    candidates: int | None = None,
-    asm_settings: str = "lmjx",
-    when_stuck: str = "best",
-    late_start: bool = False,
-    push_weight: float | None = None,
-    rescore_top: int | None = None,
-    rescore_draws: int = 8,
-    servo: str = PlannerConfig.servo,
-) -> PlannerConfig:
-    """The planner's settings as `lmjx plan` and `lmjx evaluate` take them: Greedy's candidates
-    default by the simulator `sim` ("cpu", "cpu-near", "gpu"; "none", Random's, as "cpu"),
-    asm_settings="paper" the ASMs as the paper states them, `when_stuck` Greedy's rule when
-    no candidate is predicted to improve (`PlannerConfig.when_stuck`), `late_start` edges whose
-    start lies in a fixed obstacle's margin entered at their first clear state
-    (`PlannerConfig.late_start`), `push_weight` the score's weight on where the map pushes
-    toward the goal (`PlannerConfig.push_weight`; None: 1 with lmjx's settings, 0 with the
-    paper's, which refuse any other), `rescore_top` and `rescore_draws` Greedy's second look at
-    its best candidates from redrawn observations (`PlannerConfig.rescore_top`; None: 8 with
-    lmjx's settings, 0 (off) with the paper's; a number given is kept with either), `servo` the
-    planner simulator's servo model (`PlannerConfig.servo`: "robot", the default, or "playback")."""
-    from lmjx.evaluation.trial import DEFAULT_CANDIDATES
-
-    config = PlannerConfig(
-        asm=asm,
-        max_actions=max_actions,
-        greedy_candidates=candidates or DEFAULT_CANDIDATES[sim if sim != "none" else "cpu"],
-        when_stuck=when_stuck,
-        late_start=late_start,
-        rescore_draws=rescore_draws,
-        servo=servo,
-    )
-    if asm_settings == "paper":
-        config = config.paper()
-    if rescore_top is not None:  # given: kept, with either settings
-        config = replace(config, rescore_top=rescore_top)
-    if push_weight is not None:  # given: kept, and refused with the paper's settings (`validate`)
-        config = replace(config, push_weight=push_weight)
-    config.validate()
-    return config
-
-
 def plan_task(
     map_file: str | Path | MapFile,
-    scenario: int,
+    scenario: int | Task,
     asm: str = "greedy",
     seed: int = 0,
     tasks: str = "paper",
     max_actions: int | None = None,
     candidates: int | None = None,
-    asm_settings: str = "lmjx",
-    when_stuck: str = "best",
-    late_start: bool = False,
+    asm_settings: str | None = None,
+    when_stuck: str | None = None,
+    late_start: bool | None = None,
     push_weight: float | None = None,
     rescore_top: int | None = None,
-    rescore_draws: int = 8,
-    servo: str = PlannerConfig.servo,
+    rescore_draws: int | None = None,
+    servo: str | None = None,
     sim: str = "auto",
     robot: Robot | str | Path | None = None,
     failure: Failure | str | None = None,
     render: str | Path | None = None,
     say: Any = None,
+    planner: Mapping[str, Any] | str | Path | None = None,
 ) -> PlanResult:
     """Run one task closed loop, as `lmjx plan` does: push the target cube of `scenario`
     (1: clutter, 2: tunnel, 3: eleven boxes) of the task set `tasks` ("paper" or "hard")
     into its goal region with the edges of `map_file` (a map file's path, or a `MapFile`),
-    choosing each action with `asm` ("random", "lazy" or "greedy").  `seed` fixes the layout,
-    the "real" world's physics and the planner's choices.  `max_actions`: the budget
-    (default: the task set's); `candidates`: Greedy's simulated actions per decision
-    (default 1,024 with the GPU simulator, 32 on the CPU); `asm_settings`: "lmjx" or
-    "paper" (the ASMs as the paper states them); `when_stuck`: Greedy's rule when no
-    candidate is predicted to improve ("best" or "options", `PlannerConfig.when_stuck`);
-    `late_start`: offer edges whose start lies in a fixed obstacle's margin from their first
-    clear state (`PlannerConfig.late_start`); `push_weight`: weigh the score by where the
-    map's edges push toward the goal (`PlannerConfig.push_weight`; default 1, 0 with the
-    paper's settings); `rescore_top`, `rescore_draws`: Greedy simulates its `rescore_top` best
-    candidates again from `rescore_draws - 1` redrawn observations and takes the best mean
-    (`PlannerConfig.rescore_top`; default 8, 0 with the paper's settings; 0: off);
-    `servo`: how the planner's simulator tracks the arm's joint targets ("robot", the default:
-    the robot's own gains and torque limits, or "playback": stiff servos; `PlannerConfig.servo`);
-    `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`: read the map
-    with this robot (default: the one it names); `failure`: refuse a map built for another
-    failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs OpenGL,
-    e.g. MUJOCO_GL=osmesa); `say`: where the simulator's choice goes, once the arguments are
-    checked (default: nowhere).
+    choosing each action with `asm` ("random", "lazy" or "greedy").  `scenario` may also be a
+    `Task` resolved for the map's robot (`lmjx.sim.scenarios.resolve_task`; `tasks` is then
+    its own).  `seed` fixes the layout, the "real" world's physics and the planner's choices.
+    `max_actions`: the budget (default: the task set's); `candidates`: Greedy's simulated
+    actions per decision (default 1,024 with the GPU simulator, 32 on the CPU);
+    `planner`: the planner's levers, keys of `PlannerConfig` (`lmjx plan --help-levers`), as a
+    mapping or a TOML file's path, e.g. {"asm_settings": "paper"} for the ASMs as the paper
+    states them; the keywords `asm_settings` to `servo` set the key of their name and win over
+    `planner`'s; `sim`: the planner's simulator ("auto", "cpu", "cpu-near", "gpu"); `robot`:
+    read the map with this robot (default: the one it names); `failure`: refuse a map built
+    for another failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs
+    OpenGL, e.g. MUJOCO_GL=osmesa); `say`: where the simulator's choice goes, once the
+    arguments are checked (default: nowhere).
 
     Example (the map `make run` writes; Random simulates nothing, so this takes seconds):
 
@@ -334,26 +283,28 @@ def plan_task(
     >>> r.actions <= 2 and len(r.steps) >= r.actions
     True
     """
-    from lmjx.evaluation.trial import SIMULATORS, make_simulator, resolve_simulator, run_trial, setup_trial
+    from lmjx.evaluation.levers import check_levers, planner_config, read_levers
+    from lmjx.evaluation.trial import SIMULATORS, resolve_simulator, run_trial, setup_trial
     from lmjx.runtime.fileio import check_writable
+    from lmjx.sim.scenarios import resolve_task
     from lmjx.types import ASMS
 
-    if scenario not in (1, 2, 3):
-        raise ConfigError(f"scenario {scenario!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
     if asm not in ASMS:
         raise ConfigError(f"unknown action selection mechanism '{asm}'; use {', '.join(ASMS)}")
-    if tasks not in TASK_SETS:
-        raise ConfigError(f"unknown task set '{tasks}'; use {', '.join(TASK_SETS)}")
-    if asm_settings not in ASM_SETTINGS:
-        raise ConfigError(f"unknown ASM settings '{asm_settings}'; use {', '.join(ASM_SETTINGS)}")
     if sim not in SIMULATORS:
         raise ConfigError(f"unknown simulator '{sim}'; use {', '.join(SIMULATORS)}")
     for name, value in (("max_actions", max_actions), ("candidates", candidates)):
         if value is not None and value < 1:
             raise ConfigError(f"{name} must be at least 1, got {value}")
+    levers = planner if isinstance(planner, Mapping) else read_levers(planner) if planner is not None else {}
+    given = {"asm_settings": asm_settings, "when_stuck": when_stuck, "late_start": late_start,
+             "push_weight": push_weight, "rescore_top": rescore_top, "rescore_draws": rescore_draws, "servo": servo,
+             "max_actions": max_actions, "greedy_candidates": candidates}  # fmt: skip
+    levers = check_levers({**levers, **{k: v for k, v in given.items() if v is not None}})
     m = map_file if isinstance(map_file, MapFile) else load_map(map_file, robot)
     assert m.robot is not None
     rob = m.robot
+    task = scenario if isinstance(scenario, Task) else resolve_task(scenario, rob, tasks)  # once, for everything below
     if failure is not None and as_failure(failure, rob).locked != m.failure.locked:
         wanted = failure.spec if isinstance(failure, Failure) else failure
         raise ConfigError(f"{m.path} holds a map of failure {m.failure.spec}, not {wanted}")
@@ -369,14 +320,11 @@ def plan_task(
         sim_name, why = "none", "random does not simulate"
     else:
         sim_name, why = resolve_simulator(sim)
-    config = planner_config(
-        asm, sim_name, max_actions, candidates, asm_settings, when_stuck, late_start, push_weight, rescore_top,
-        rescore_draws, servo,
-    )  # fmt: skip
+    config = planner_config(asm, sim_name, levers)
     if say is not None and sim_name != "none":  # once the settings are checked
         say(f"simulator {sim_name} ({why})")
-    simulator = make_simulator(rob, scenario, sim_name, tasks, servo=config.servo) if sim_name != "none" else None
-    setup = setup_trial(rob, m, scenario, config, seed, simulator=simulator, tasks=tasks)
+    setup = setup_trial(rob, m, task, config, seed, backend=sim_name)
+    simulator = setup.planner.sim
     recorder = None
     if render is not None:
         from lmjx.sim.render import Recorder
@@ -388,8 +336,8 @@ def plan_task(
     return PlanResult(
         robot=rob.key,
         failure=m.failure.spec,
-        scenario=scenario,
-        tasks=tasks,
+        scenario=task.number,
+        tasks=task.tasks,
         asm=asm,
         seed=seed,
         simulator=sim_name,

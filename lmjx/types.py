@@ -10,8 +10,8 @@ meet without importing each other.  Nothing here computes anything.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Protocol
+from dataclasses import dataclass, field, fields, replace
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -97,52 +97,103 @@ RESCORE_YAW_NOISE = math.radians(1.5)  # [rad]
 OPTIONS_NEAR = 0.8  # when_stuck="options": candidates with at least this share of the most options qualify
 
 
+def _lever(default: object, meaning: str, **bounds: object) -> Any:
+    """A PlannerConfig field: its default, what it means (`lmjx plan --help-levers`,
+    docs/PLANNER.md) and the values it takes (`choices`, `least`, `above` and `most`: checked
+    where users set it, `lmjx.evaluation.levers`)."""
+    return field(default=default, metadata={"meaning": meaning, **bounds})
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
-    asm: str = "greedy"
-    max_actions: int | None = None  # the action budget; None: the task set's (`Scenario.budget`)
-    max_planning_s: float = 600.0
-    greedy_candidates: int = 32
-    lazy_tries: int = 32
-    min_progress: float = 0.005  # "moved toward the goal": the distance drops by at least this [m]
-    target_margin: float = 0.01  # edges over cells within the target's half size + this [m]
-    goal_margin: float = 0.01  # stop once the observed target is this far inside the goal region [m]
-    futile_radius: float = 0.01  # an executed edge that made no progress is not offered again
-    # while the target stays within this distance of where it was [m]
+    """The planner's settings (Algorithm 3): the action selection mechanism and every lever of
+    it, with its default and meaning.  The commands take the levers as keys of this class
+    (`--set KEY=VALUE`, `--planner-config FILE`: `lmjx.evaluation.levers`); `settings()` is
+    what the results record of them."""
+
+    asm: str = _lever("greedy", "the action selection mechanism (--asm, --asms)", choices=ASMS)
+    max_actions: int | None = _lever(None, "the action budget per task (--max-actions); none: the task set's", least=1)
+    max_planning_s: float = _lever(600.0, "[s] a trial stops once its planning time passes this", above=0.0)
+    greedy_candidates: int = _lever(
+        32,
+        "greedy: candidate actions simulated per decision (--candidates; the commands' default: 1024 with the GPU "
+        "simulator, 32 on the CPU)",
+        least=1,
+    )
+    lazy_tries: int = _lever(32, "lazy: simulations per decision at most (with lazy_cap)", least=1)
+    min_progress: float = _lever(
+        0.005, "[m] an action 'moves the target toward the goal' when its score drops by at least this", least=0.0
+    )
+    target_margin: float = _lever(
+        0.01, "[m] the edges offered pass over the reach cells within the target's half size plus this", least=0.0
+    )
+    goal_margin: float = _lever(
+        0.01, "[m] the planner stops once the observed target is this far inside the goal region", least=0.0
+    )
+    futile_radius: float = _lever(
+        0.01,
+        "[m] an executed edge that did not bring the target closer is not offered again while the target stays "
+        "within this distance of where it was (futile_filter)",
+        least=0.0,
+    )
     # lmjx's refinements of the paper's ASMs, each of which can be turned off (`paper()`):
-    futile_filter: bool = True  # edges that failed here are not offered again (futile_radius)
-    path_score: bool = True  # "closest" = path length around the fixed obstacles (else straight distance)
-    lazy_fallback: bool = True  # Lazy takes its best simulated edge when none brings the target closer
-    lazy_cap: bool = True  # Lazy stops after lazy_tries simulations (the paper: no cap)
-    greedy_fraction: float | None = None  # Greedy's subset: this fraction of the edges over the
-    # target (at least one) instead of greedy_candidates
-    when_stuck: str = "best"  # Greedy when no candidate is predicted to bring the target min_progress
-    # closer: "best" takes the best predicted all the same (the paper's Greedy); "options" takes,
-    # among the candidates that keep every object on the table, the one whose predicted state
-    # leaves the most edges to offer (starts clear, acting on the target: `TransitPlanner.options`),
-    # the best predicted of those within OPTIONS_NEAR of the most
-    late_start: bool = False  # where the edges with clear starts give fewer candidates than
-    # wanted, an edge whose start lies within a fixed obstacle's margin is offered from its first
-    # state clear of the scene (`TransitPlanner.late_starts`), where that part still acts on the
-    # target; off: such an edge is not offered
-    push_weight: float = 1.0  # > 0: "closest" is the cost of the cheapest way to the goal, each
-    # metre weighted by how rarely the map's edges push toward the goal there (`lmjx.planner.pushfield`:
-    # 1 + push_weight * ln(median / pushes), at least 1); 0: the path length (`path_score`).
-    # 1: on the hard tunnel's calibration seeds 23 of 30 trials with it against 14 without
-    rescore_top: int = 8  # > 0: Greedy simulates its this many best candidates again from
-    # rescore_draws - 1 more starts, every object's observed pose redrawn with the observation
-    # noise the "real" world's camera has (`RESCORE_POS_NOISE`, `RESCORE_YAW_NOISE`), and takes
-    # the one with the lowest mean score over the rescore_draws starts (the observed one
-    # included): a push whose outcome hangs on millimetres no longer wins on one lucky rollout.
-    # 8 (x 8 draws): the hard tunnel's calibration trials 26 of 30 with it against 23 without
-    # (docs/EVALUATION.md, "Method changes"); 0: off
-    rescore_draws: int = 8
-    servo: str = "robot"  # the planner's simulator tracks the arm's joint targets with "robot":
-    # the robot's own joint servo gains and torque limits (`executor.real_gains`: the controller
-    # the arm runs, so a simulated push lags and overshoots as the arm's does), or "playback":
-    # stiff servos with unlimited torque (near-exact playback of the trajectory).  "robot": of the
-    # "real" world's differences the servos move a push's result as much as any and are the one
-    # the planner can know; the hard tunnel's calibration trials 28 of 30 against 26 with playback
+    futile_filter: bool = _lever(True, "edges that failed here are not offered again (futile_radius)")
+    path_score: bool = _lever(
+        True, "'closest' is the path length around the fixed obstacles; false: the straight distance"
+    )
+    lazy_fallback: bool = _lever(
+        True, "lazy takes its best simulated edge when none brings the target closer; false: no action"
+    )
+    lazy_cap: bool = _lever(True, "lazy stops after lazy_tries simulations; false: it may try every edge")
+    greedy_fraction: float | None = _lever(
+        None,
+        "greedy simulates this fraction (0 to 1) of the edges over the target (at least one) instead of "
+        "greedy_candidates; none: greedy_candidates",
+        above=0.0,
+        most=1.0,
+    )
+    when_stuck: str = _lever(
+        "best",
+        "greedy, when no candidate is predicted to bring the target min_progress closer: best takes the best "
+        "predicted all the same (the paper's Greedy); options takes, of the candidates that keep every object on "
+        "the table, the one whose predicted state leaves the most edges to offer (starts clear, acting on the "
+        "target), the best predicted of those within 80% of the most (OPTIONS_NEAR)",
+        choices=WHEN_STUCK,
+    )
+    late_start: bool = _lever(
+        False,
+        "where the edges with clear starts give fewer candidates than wanted, an edge whose start lies within a "
+        "fixed obstacle's margin (2 cm) is offered from its first state clear of the scene, where that part "
+        "still acts on the target; false: such an edge is not offered",
+    )
+    # push_weight 1: on the hard tunnel's calibration seeds 23 of 30 trials with it against 14 without
+    push_weight: float = _lever(
+        1.0,
+        "> 0: 'closest' is the cost of the cheapest way to the goal, each metre weighted by how rarely the map's "
+        "edges push toward the goal there: 1 + push_weight ln(median / pushes), at least 1 (the counts take "
+        "minutes per map and scenario on a CPU, then are kept in lmjx's cache folder); 0: the path length alone "
+        "(path_score); needs path_score",
+        least=0.0,
+    )
+    # rescore_top 8 (x 8 draws): the hard tunnel's calibration trials 26 of 30 with it against 23 without
+    rescore_top: int = _lever(
+        8,
+        "> 0: greedy simulates its this many best candidates again from rescore_draws - 1 more starts, every "
+        "object's observed pose redrawn with the camera's noise (2 mm, 1.5 deg), and takes the one with the "
+        "lowest mean score over all its starts (a push whose outcome hangs on millimetres no longer wins on one "
+        "lucky rollout); 0: off",
+        least=0,
+    )
+    rescore_draws: int = _lever(8, "starts per rescored candidate, the observed one included", least=2)
+    # servo "robot": of the "real" world's differences the servos move a push's result as much as any and
+    # are the one the planner can know; the hard tunnel's calibration trials 28 of 30 against 26 with playback
+    servo: str = _lever(
+        "robot",
+        "how the planner's simulator tracks the arm's joint targets: robot (the robot's own joint servo gains "
+        "and torque limits, as its controller tracks them: a simulated push lags and overshoots as the arm's "
+        "does) or playback (stiff servos with unlimited torque: the trajectory played back nearly exactly)",
+        choices=SERVOS,
+    )
 
     __repr__ = config_repr
 
@@ -158,7 +209,7 @@ class PlannerConfig:
         if self.push_weight > 0.0 and not self.path_score:
             raise ConfigError(
                 "a push weight weighs the path-length score, which the paper's ASM settings replace by the "
-                "straight distance: leave out --push-weight or --asm-settings paper"
+                "straight distance: leave out --push-weight (push_weight) or the paper's settings (asm_settings=paper)"
             )
         if self.rescore_top < 0:
             raise ConfigError(f"the candidates to rescore must be at least 0, got {self.rescore_top}")
@@ -199,7 +250,13 @@ class PlannerConfig:
                 if self.rescore_top and (asm or self.asm) == "greedy"
                 else {}
             ),
-            # (only where not the playback, the only model before this setting existed, and only
-            # for the ASMs that simulate: as above)
+            # (only where not the playback, and only for the ASMs that simulate: as above)
             **({"servo": self.servo} if self.servo != "playback" and (asm or self.asm) != "random" else {}),
+            # the other levers, only where they differ from their defaults
+            **{k: getattr(self, k) for k in UNLISTED if getattr(self, k) != _DEFAULTS[k]},
         }
+
+
+# the fields `settings()` lists only where they differ from their defaults (the others it always lists)
+UNLISTED = ("max_planning_s", "min_progress", "target_margin", "goal_margin", "futile_radius")
+_DEFAULTS = {f.name: f.default for f in fields(PlannerConfig)}

@@ -52,6 +52,7 @@ def trial_figures(path: str) -> dict:
     from lmjx.evaluation.trial import run_trial, setup_trial
     from lmjx.mapfile.read import load_map
     from lmjx.model.robot import load_robot
+    from lmjx.sim.scenarios import resolve_task
     from lmjx.types import PlannerConfig
 
     robot = load_robot()
@@ -63,7 +64,7 @@ def trial_figures(path: str) -> dict:
             lazy_tries=TRIAL["lazy_tries"], push_weight=0.0, rescore_top=0,  # (module docstring)
             servo="playback",
         )  # fmt: skip
-        res = run_trial(setup_trial(robot, m, TRIAL["scenario"], cfg, seed=TRIAL["seed"], tasks="hard"))
+        res = run_trial(setup_trial(robot, m, resolve_task(TRIAL["scenario"], robot, "hard"), cfg, seed=TRIAL["seed"]))
         out[asm] = {
             "success": bool(res.success),
             "actions": int(res.actions),

@@ -129,3 +129,26 @@ def test_plan_task_refuses_in_one_line(small_map, tiny_case2, tmp_path):
     with pytest.raises(ConfigError, match="unknown device"):
         lmjx.use_device("tpu")
     assert lmjx.use_device("cpu") == "cpu"
+
+
+def test_plan_task_takes_a_resolved_task_and_the_planners_keys(robot, small_map, tmp_path):
+    """A Task resolved for the map's robot plans as its number does; one placed for another
+    robot is refused; the levers as keys (a mapping or a TOML file) plan as the keywords."""
+    from lmjx.sim.scenarios import resolve_task
+
+    want = lmjx.plan_task(small_map, 1, "random", seed=0, max_actions=2, late_start=True).summary()
+    assert want["asm_settings"]["late_start"] is True
+    task = resolve_task(1, robot, "paper")
+    assert (task.number, task.tasks, task.budget, task.robot) == (1, "paper", 30, "panda")
+    levers = tmp_path / "levers.toml"
+    levers.write_text("late_start = true\n")
+    for got in (
+        lmjx.plan_task(small_map, task, "random", seed=0, max_actions=2, planner={"late_start": True}),
+        lmjx.plan_task(small_map, 1, "random", seed=0, planner={"late_start": True, "max_actions": 2}),
+        lmjx.plan_task(small_map, 1, "random", seed=0, max_actions=2, planner=levers),
+    ):
+        assert _no_wall_time(got.summary()) == _no_wall_time(want)
+    with pytest.raises(ConfigError, match="scenario 1 is placed for the robot ur5e, not panda"):
+        lmjx.plan_task(small_map, resolve_task(1, lmjx.load_robot("ur5e")), "random")
+    with pytest.raises(ConfigError, match="planner: rescore_top takes a whole number at least 0, got -1"):
+        lmjx.plan_task(small_map, 1, "random", planner={"rescore_top": -1})

@@ -113,3 +113,141 @@ def test_info_refuses_bad_files(tmp_path, small_map, kind):
                 f.attrs["robot_model_hash"] = "f" * 64
     r = cli("info", path)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+
+
+# ------------------------------------------------------------------------------ the planner's levers
+
+
+def _old_planner_config(asm, sim, max_actions=None, candidates=None, asm_settings="lmjx", when_stuck="best",
+                        late_start=False, push_weight=None, rescore_top=None, rescore_draws=8,
+                        servo="robot"):  # fmt: skip
+    """The planner's configuration as the options that each set one lever made it: the
+    reference the keys (--set, --planner-config) must give again."""
+    from dataclasses import replace
+
+    from lmjx.types import PlannerConfig
+
+    candidates = candidates or (1024 if sim == "gpu" else 32)
+    config = PlannerConfig(asm=asm, max_actions=max_actions, greedy_candidates=candidates, when_stuck=when_stuck,
+                           late_start=late_start, rescore_draws=rescore_draws, servo=servo)  # fmt: skip
+    if asm_settings == "paper":
+        config = config.paper()
+    if rescore_top is not None:
+        config = replace(config, rescore_top=rescore_top)
+    if push_weight is not None:
+        config = replace(config, push_weight=push_weight)
+    return config
+
+
+def _levers_config(command: str, asm: str, sim: str, *args: str):
+    """The PlannerConfig the command line `args` of `command` gives (parsed, not run)."""
+    from lmjx.cli import build_parser
+    from lmjx.cli.plan import planner_levers
+    from lmjx.evaluation.levers import planner_config
+
+    base = (
+        ["plan", "--map", "m.h5", "--scenario", "1", "--asm", asm] if command == "plan" else ["evaluate", "--out", "e"]
+    )
+    return planner_config(asm, sim, planner_levers(build_parser().parse_args([*base, *args])))
+
+
+@pytest.mark.parametrize("command", ["plan", "evaluate"])
+def test_plan_and_evaluate_help_fits_a_screen(command):
+    """Everyday options in --help (at most 60 lines on an 80-column terminal); the levers
+    listed by --help-levers, each with its default; the options that moved not shown."""
+    from lmjx.cli.plan import MOVED
+    from lmjx.evaluation.levers import keys
+
+    r = cli(command, "--help", env={"COLUMNS": "80"}).ok()
+    assert len(r.stdout.splitlines()) <= 60, r.stdout
+    for option in ("--tasks", "--max-actions", "--candidates", "--sim", "--planner-config", "--set", "--help-levers"):
+        assert option in r.stdout, option
+    for option, _, _ in MOVED:
+        assert option not in r.stdout, option
+    levers = cli(command, "--help-levers").ok().stdout
+    for key, default in (("asm_settings", '"lmjx"'), ("push_weight", "1"), ("rescore_top", "8"), ("servo", '"robot"')):
+        assert f"\n{key} = {default}\n" in levers, key
+    assert all(f"\n{key} = " in levers for key in keys()) and "asm = " not in levers
+
+
+def test_set_and_planner_config_give_the_old_options_config(tmp_path):
+    levers = tmp_path / "levers.toml"
+    levers.write_text(
+        '# Greedy without the push weight\npush_weight = 0.5\nrescore_top = 9\nrescore_draws = 3\nservo = "playback"\n'
+    )
+    paper = tmp_path / "paper.toml"
+    paper.write_text('asm_settings = "paper"\n')
+    for command in ("plan", "evaluate"):
+        cases = [
+            ("greedy", "cpu", {}, [], []),
+            ("lazy", "cpu", {"asm_settings": "paper", "when_stuck": "options", "late_start": True},
+             ["--asm-settings", "paper", "--when-stuck", "options", "--late-start"],
+             ["--set", "asm_settings=paper", "--set", "when_stuck=options", "--set", "late_start=true"]),
+            ("greedy", "gpu", {"push_weight": 0.5, "rescore_top": 2, "rescore_draws": 3, "servo": "playback",
+                               "candidates": 4, "max_actions": 2},
+             ["--push-weight", "0.5", "--rescore-top", "2", "--rescore-draws", "3", "--servo", "playback",
+              "--candidates", "4", "--max-actions", "2"],
+             # --set wins over the file, --candidates and --max-actions over --set
+             ["--planner-config", str(levers), "--set", "rescore_top=2", "--set", "greedy_candidates=7",
+              "--candidates", "4", "--set", "max_actions=none", "--max-actions", "2"]),
+            ("greedy", "gpu", {"asm_settings": "paper", "rescore_top": 4},
+             ["--asm-settings", "paper", "--rescore-top", "4"],
+             ["--planner-config", str(paper), "--set", "rescore_top=4"]),
+        ]  # fmt: skip
+        for asm, sim, old_kwargs, old_args, new_args in cases:
+            want = _old_planner_config(asm, sim, **old_kwargs)
+            assert _levers_config(command, asm, sim, *old_args) == want, (command, old_args)
+            assert _levers_config(command, asm, sim, *new_args) == want, (command, new_args)
+
+
+def test_a_moved_option_says_where_it_moved_and_works_as_before(small_map, tmp_path):
+    def no_wall_time(summary: dict) -> dict:
+        wall = {"planning_s": 0, "compile_s": 0}
+        return summary | wall | {"steps": [s | wall for s in summary["steps"]]}
+
+    # (no push weight: its counts are not needed)
+    args = ("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--candidates", "4", "--max-actions",
+            "1", "--json")  # fmt: skip
+    old = cli(*args, "--push-weight", "0", "--rescore-top", "2").ok()
+    new = cli(*args, "--set", "push_weight=0", "--set", "rescore_top=2").ok()
+    notes = [line for line in old.stderr.splitlines() if "note:" in line]
+    assert notes == ["lmjx plan: note: --push-weight moved to --set push_weight=0",
+                     "lmjx plan: note: --rescore-top moved to --set rescore_top=2"]  # fmt: skip
+    assert "note:" not in new.stderr
+    a, b = json.loads(old.stdout), json.loads(new.stdout)
+    assert a["asm_settings"]["rescore"] == "best 2, 8 starts" and a["asm_settings"]["push_weight"] == 0.0
+    assert no_wall_time(a) == no_wall_time(b)
+    args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random", "--trials", "1",
+            "--max-actions", "1", "--maps", small_map.parent)  # fmt: skip
+    r = cli(*args, "--out", tmp_path / "old", "--late-start").ok()
+    assert r.stderr.splitlines().count("lmjx evaluate: note: --late-start moved to --set late_start=true") == 1
+    cli(*args, "--out", tmp_path / "new", "--set", "late_start=true").ok()
+    old_records, new_records = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("old", "new"))
+    assert old_records[0]["asm_settings"]["late_start"] is True
+    assert [r | {"planning_s": 0, "compile_s": 0} for r in old_records] == [
+        r | {"planning_s": 0, "compile_s": 0} for r in new_records
+    ]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--set", "push_wieght=1"], "unknown key 'push_wieght' (did you mean push_weight?)"),
+        (["--set", "push_weight=heavy"], "--set push_weight=heavy: push_weight takes a number at least 0, got 'heavy'"),
+        (["--set", "rescore_draws=1"], "rescore_draws takes a whole number at least 2, got '1'"),
+        (["--set", "servo=stiff"], "servo takes playback or robot"),
+        (["--set", "late_start=maybe"], "late_start takes true or false"),
+        (["--set", "late_start"], "give KEY=VALUE"),
+        (["--set", "asm=lazy"], "asm is not a lever"),
+        (["--planner-config", "missing.toml"], "no such file"),
+        (["--planner-config", "bad.toml"], "not TOML"),
+        (["--planner-config", "typed.toml"], "rescore_top takes a whole number at least 0, got 'four'"),
+    ],
+)
+def test_a_bad_lever_is_one_line_and_exit_2(args, message, tmp_path):
+    (tmp_path / "bad.toml").write_text("push_weight 0.5\n")
+    (tmp_path / "typed.toml").write_text('rescore_top = "four"\n')
+    args = [str(tmp_path / a) if a.endswith(".toml") else a for a in args]
+    cli("plan", "--map", tmp_path / "m.h5", "--scenario", "1", "--asm", "greedy", *args).one_line_error(message)
+    cli("evaluate", "--out", tmp_path / "e", *args).one_line_error(message)
+    assert not (tmp_path / "e").exists()

@@ -241,3 +241,20 @@ def test_no_development_history_in_the_tree() -> None:
     assert not hits, "development history in the tree:\n" + "\n".join(hits)
     unused = [ALLOWED[i] for i in range(len(ALLOWED)) if i not in used]
     assert not unused, f"allowances no longer in use (remove them): {unused}"
+
+
+def test_planner_page_lists_every_lever() -> None:
+    """docs/PLANNER.md has a row for every key of the planner's configuration, with its default
+    as `--help-levers` gives it, and every option that moved."""
+    from dataclasses import fields
+
+    from lmjx.cli.plan import MOVED
+    from lmjx.evaluation.levers import keys, toml_text
+    from lmjx.types import PlannerConfig
+
+    text = (ROOT / "docs" / "PLANNER.md").read_text()
+    defaults = {f.name: f.default for f in fields(PlannerConfig)} | {"asm_settings": "lmjx"}
+    for key in keys():
+        assert f"| `{key}` | `{toml_text(defaults[key])}` |" in text, key
+    for option, key, _ in MOVED:
+        assert f"| `{option}" in text and f"`--set {key}=" in text, option

@@ -23,7 +23,7 @@ from lmjx.planner.transit import TransitPlanner
 from lmjx.sim.controls import controls
 from lmjx.sim.cpu import CpuSimulator
 from lmjx.sim.realworld import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
-from lmjx.sim.scenarios import in_goal, sample_layout, scenario
+from lmjx.sim.scenarios import in_goal, resolve_task, sample_layout, scenario
 from lmjx.sim.scene import build_scene, object_qpos, read_objects, set_state
 from lmjx.types import CONTROL_DT, PlannerConfig
 
@@ -191,8 +191,8 @@ def test_trials_run_and_repeat(robot, plan_map, asm):
     cfg = PlannerConfig(
         asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4, push_weight=0.0, rescore_top=0, servo="playback"
     )
-    a = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
-    b = run_trial(setup_trial(robot, m, 1, cfg, seed=3, tasks="hard"))
+    a = run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), cfg, seed=3))
+    b = run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), cfg, seed=3))
     wall = {"planning_s": 0, "compile_s": 0}  # the first run compiles what the second finds compiled
     assert a.summary() | wall == b.summary() | wall
     assert 1 <= a.actions <= 2 and a.execution_s > 0
@@ -348,7 +348,7 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     from lmjx.planner.transit import TransitPlanner
 
     m = load_map(plan_map)
-    sim = make_simulator(robot, 1, "cpu", "hard")
+    sim = make_simulator(robot, resolve_task(1, robot, "hard"), "cpu")
     runs = [("random", 5), ("lazy", 6), ("lazy", 8), ("greedy", 7)]
     cfgs = [PlannerConfig(asm=a, max_actions=1, greedy_candidates=6, lazy_tries=4, lazy_cap=True) for a, _ in runs]
 
@@ -357,7 +357,7 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
         return res.summary() | wall | {"steps": [s | wall for s in res.action_records()]}
 
     alone = [
-        record(run_trial(setup_trial(robot, m, 1, c, seed=seed, simulator=sim, tasks="hard")))
+        record(run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim)))
         for c, (_, seed) in zip(cfgs, runs, strict=True)
     ]
     lazy_tries = [x["simulated"] for (a, _), r in zip(runs, alone, strict=True) if a == "lazy" for x in r["steps"]]
@@ -365,7 +365,7 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     for window in (None, 2):  # all at once (a GPU's batches), or two in flight (the CPU's cores)
         shared = TransitPlanner(robot, m.failure)
         setups = [
-            setup_trial(robot, m, 1, c, seed=seed, simulator=sim, transits=shared, tasks="hard")
+            setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim, transits=shared)
             for c, (_, seed) in zip(cfgs, runs, strict=True)
         ]
         together: dict[int, dict] = {}
@@ -1173,7 +1173,7 @@ def test_greedy_stuck_takes_the_candidate_that_leaves_the_most_options(robot, pl
     from lmjx.types import OPTIONS_NEAR
 
     m = load_map(plan_map)
-    setup = setup_trial(robot, m, 1, PlannerConfig(asm="greedy", when_stuck="options"), 3, tasks="hard")
+    setup = setup_trial(robot, m, resolve_task(1, robot, "hard"), PlannerConfig(asm="greedy", when_stuck="options"), 3)
     planner: Planner = setup.planner
     sc = planner.sc
     base = _observed(robot, sc, 3)
@@ -1490,7 +1490,7 @@ def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     real = CpuSimulator(build_scene(robot, sc, servos_only), threads=1).simulate(tp.park, objects, acts)[:, 0, :2]
     ends = {}
     for servo in ("robot", "playback"):
-        sim = make_simulator(robot, 3, "cpu", "hard", servo=servo)
+        sim = make_simulator(robot, resolve_task(3, robot, "hard"), "cpu", servo=servo)
         ends[servo] = np.hypot(*(sim.simulate(tp.park, objects, acts)[:, 0, :2] - real).T)
     moved = np.hypot(*(real - objects[0, :2]).T)
     assert moved.max() > 0.01, moved  # the actions push the target

@@ -24,7 +24,7 @@ from lmjx.model.failure import parse_failure
 from lmjx.planner.clearance import park_pose
 from lmjx.sim.cpu import CpuSimulator
 from lmjx.sim.gpu import GpuSimConfig, GpuSimulator, warp_problem
-from lmjx.sim.scenarios import sample_layout, scenario
+from lmjx.sim.scenarios import resolve_task, sample_layout, scenario
 from lmjx.sim.scene import build_scene, object_qpos, set_state
 
 
@@ -213,8 +213,8 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     report = out_of_sample(
         robot,
         maps,
-        {s: make_simulator(robot, s, "gpu", "hard") for s in (1, 2, 3)},
-        {s: make_simulator(robot, s, "cpu", "hard") for s in (1, 2, 3)},
+        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "gpu") for s in (1, 2, 3)},
+        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "cpu") for s in (1, 2, 3)},
     )
     if "LMJX_TEST_REPORT" in os.environ:
         Path(os.environ["LMJX_TEST_REPORT"]).write_text(json.dumps(report, indent=1))

@@ -397,6 +397,7 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     from lmjx.evaluation.agreement import decision_states, measure
     from lmjx.evaluation.evaluate import load_maps
     from lmjx.evaluation.trial import make_simulator, resolve_simulator
+    from lmjx.sim.scenarios import resolve_task
 
     sim_name, why = resolve_simulator(args.sim)
     if sim_name == "cpu":
@@ -409,14 +410,15 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     scenarios = (1, 2, 3)
     seeds = 2 if args.quick else args.agreement_seeds
     decisions = decision_states(robot, maps, scenarios, seeds, 3, 8 if args.quick else 64)
-    tested = {s: make_simulator(robot, s, sim_name, "hard") for s in scenarios}
-    reference = {s: make_simulator(robot, s, "cpu", "hard") for s in scenarios}
+    tasks = {s: resolve_task(s, robot, "hard") for s in scenarios}
+    tested = {s: make_simulator(robot, tasks[s], sim_name) for s in scenarios}
+    reference = {s: make_simulator(robot, tasks[s], "cpu") for s in scenarios}
     out = measure(robot, decisions, tested, reference)
     out |= {"simulator": sim_name, "maps": args.maps or robot.maps_dir, "seeds": seeds, "depth": 3}
     if sim_name == "gpu":
         # the same decisions on two GPU simulators batching them differently: how far float32
         # rounding (and the order atomics leave contacts in) carries through the scenes' contacts
-        twin = {s: make_simulator(robot, s, "gpu", "hard") for s in scenarios}
+        twin = {s: make_simulator(robot, tasks[s], "gpu") for s in scenarios}
         self_check = measure(robot, decisions, tested, twin)
         out["gpu_vs_gpu"] = {k: v for k, v in self_check.items() if k != "per_decision"}
     return out

@@ -28,7 +28,7 @@ from lmjx.planner.scoring import score
 from lmjx.planner.transit import TransitPlanner
 from lmjx.runtime.cores import usable_cores
 from lmjx.sim.cpu import CpuSimulator
-from lmjx.sim.scenarios import sample_layout, scenario
+from lmjx.sim.scenarios import resolve_task, sample_layout, scenario
 from lmjx.sim.scene import build_scene, object_qpos
 from lmjx.types import Observation, PlannerConfig
 
@@ -120,7 +120,7 @@ def bench_planner(
     row = {"simulator": "cpu-near", "what": near.description, "candidates": n, "seconds": t, "repeats": repeats}
     out["rows"].append({**row, "steps": steps, "steps_per_s": steps / t, **agreement(sc, robot, final, reference[n])})
     if sim_name == "gpu":
-        gpu = make_simulator(robot, scenario_number, "gpu", "hard")
+        gpu = make_simulator(robot, resolve_task(scenario_number, robot, "hard"), "gpu")
         for n in counts:
             capture = gpu.prepare(n, max(len(a.q) for a in acts[:n]))
             t0 = time.perf_counter()

@@ -79,8 +79,8 @@ def _add_robot(p: argparse.ArgumentParser, from_map: bool = False) -> None:
     p.add_argument(
         "--robot",
         metavar="NAME|PATH",
-        help=f"the arm: a shipped robot's name (panda, ur5e; see lmjx robots) or the path of an MJCF that meets "
-        f"docs/ROBOTS.md (check it with lmjx robot check PATH) (default: {default})",
+        help=f"the arm: a shipped robot's name (panda, ur5e; lmjx robots) or an MJCF's path (docs/ROBOTS.md) "
+        f"(default: {default})",
     )
 
 
@@ -102,7 +102,7 @@ def _add_device(p: argparse.ArgumentParser) -> None:
         "--device",
         choices=("auto", "cpu", "gpu"),
         default="auto",
-        help="where the kernels run: auto (a GPU if JAX sees one, else the CPU), cpu or gpu",
+        help="where the kernels run: auto (default: a GPU if JAX sees one), cpu or gpu",
     )
 
 

@@ -8,37 +8,37 @@ import sys
 from collections.abc import Callable
 
 from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
-from lmjx.cli.plan import _add_planner_options, _planner_config, _resolve_sim
+from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, _resolve_sim, moved_notes, planner_levers
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "evaluate",
         help="trials over failures x scenarios x ASMs, with a report",
-        description="Run the paper's evaluation: for each failure, scenario and action selection mechanism, "
-        "--trials tasks (the same layouts and 'real'-world perturbations for every ASM and failure).  Writes "
-        "results.json after every trial (a rerun continues where it stopped), then report.md, bubble.png and "
-        "actions.png.  Maps come from --maps/<failure>.h5 (lmjx build-map).  A task's time is its planning "
-        "(wall clock, less any compiling of kernels on first use: recorded apart as compile_s) plus its robot "
-        "time (the simulated execution).",
+        description="Run the paper's evaluation: --trials tasks for each failure, scenario and action selection "
+        "mechanism (the same layouts and 'real' worlds for every ASM and failure).  Writes results.json after "
+        "every trial (a rerun continues where it stopped), then report.md, bubble.png and actions.png.  A task's "
+        "time: planning (wall clock, less compiling) plus robot time (simulated execution).",
+        epilog=LEVERS_EPILOG,
     )
-    p.add_argument("--failures", help="comma separated (default: the robot's presets; the Panda's case1,case2)")
+    p.add_argument("--failures", metavar="LIST", help="comma separated (default: the robot's presets)")
     _add_robot(p)
-    p.add_argument("--scenarios", default="1,2,3", help="comma separated (default 1,2,3)")
-    p.add_argument("--asms", default="random,lazy,greedy", help="comma separated (default random,lazy,greedy)")
-    p.add_argument("--trials", type=_positive_int, default=15, help="trials per cell (default 15)")
-    p.add_argument("--maps", help="folder of <failure>.h5 map files (default maps; another robot's: maps/<robot>)")
+    p.add_argument("--scenarios", default="1,2,3", metavar="LIST", help="comma separated (default 1,2,3)")
+    p.add_argument(
+        "--asms", default="random,lazy,greedy", metavar="LIST", help="comma separated (default random,lazy,greedy)"
+    )
+    p.add_argument("--trials", type=_positive_int, default=15, metavar="N", help="trials per cell (default 15)")
+    p.add_argument("--maps", metavar="DIR", help="folder of <failure>.h5 maps (default maps/ or maps/<robot>)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
     p.add_argument(
         "--part",
         metavar="K/N",
         default="1/1",
-        help="run only part K of N of every cell (its trials K, K+N, K+2N, ...; default 1/1: all): one "
-        "evaluation split across processes or machines, each with its own --out; merge their results.json "
-        "afterwards (benchmarks/eval_acceptance.py --merge DEST DIR...)",
+        help="run part K of N of every cell (trials K, K+N, ...; default 1/1), each part with its own --out "
+        "(merge them: benchmarks/eval_acceptance.py --merge)",
     )
     _add_planner_options(p)
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)
     p.set_defaults(run=cmd_evaluate)
@@ -78,6 +78,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         simulator_description,
         summarize,
     )
+    from lmjx.evaluation.levers import planner_config
     from lmjx.runtime.fileio import check_writable, write_text_atomic
 
     robot = _load_robot(args)
@@ -94,13 +95,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         part=_part(args.part),
     )
     config.validate()
-    _planner_config(args, "greedy", "cpu")  # the planner's settings checked before anything is loaded or said
+    levers = planner_levers(args)
+    planner_config("greedy", "cpu", levers)  # the planner's settings checked before anything is loaded or said
     out = Path(args.out)
     maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))  # before --out is made
     check_writable(out / "results.json", "results")
     simulates = bool(set(config.asms) - {"random"})
     sim_name, why = _resolve_sim(args) if simulates else ("cpu", "random does not simulate")
-    config = replace(config, planner=_planner_config(args, "greedy", sim_name), backend=sim_name)
+    config = replace(config, planner=planner_config("greedy", sim_name, levers), backend=sim_name)
     try:
         records = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr))
     except KeyboardInterrupt:
@@ -108,6 +110,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             f"lmjx evaluate: interrupted; the trials finished are kept in {out}/results.json: rerun the same "
             "command to continue (it resumes with the trials not yet run)"
         )
+    for note in moved_notes(args):  # after the run: a refusal before it stays one line
+        print(note, file=sys.stderr)
     write_text_atomic(out / "report.md", report_markdown(records, config, simulator_description(sim_name), robot))
     plots(records, out)
     rows = summarize(records)

@@ -1,115 +1,16 @@
-"""`lmjx plan`: one manipulation task with simulation in the loop (paper Algorithm 3), and
-the planner's options that `lmjx evaluate` shares."""
+"""`lmjx plan`: one manipulation task with simulation in the loop (paper Algorithm 3); and the
+planner's options `lmjx evaluate` shares: the everyday ones, and the planner's levers, given as
+keys of its configuration (`--planner-config FILE`, `--set KEY=VALUE`, `--help-levers`:
+`lmjx.evaluation.levers`).  The options that each set one lever (`MOVED`) are accepted, hidden
+from --help, and say in one line on stderr which key they set."""
 
 from __future__ import annotations
 
 import argparse
 import sys
-from typing import TYPE_CHECKING
+from typing import Any
 
 from lmjx.cli.common import _add_device, _add_robot, _emit, _load_robot, _nonnegative_int, _positive_int
-from lmjx.sim.scenarios import PAPER_BUDGET, Scenario
-
-if TYPE_CHECKING:
-    from lmjx.types import PlannerConfig
-
-
-def _add_sim(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--sim",
-        choices=("auto", "cpu", "cpu-near", "gpu"),
-        default="auto",
-        help="the planner's simulator: gpu (MuJoCo Warp on a CUDA GPU, the whole scene), cpu (C MuJoCo on all "
-        "host cores, the whole scene), cpu-near (C MuJoCo, only the target and its 3 nearest objects) or auto "
-        "(default: gpu where a CUDA GPU and warp-lang are present, else cpu); the choice is printed on stderr "
-        "and given in --json",
-    )
-
-
-def _add_planner_options(p: argparse.ArgumentParser) -> None:
-    """The planner's options, shared by plan and evaluate."""
-    p.add_argument(
-        "--tasks",
-        choices=("paper", "hard"),
-        default="paper",
-        help="the task set: paper (default; goal regions, distances and budget calibrated to the paper's reported "
-        "outcomes, docs/EVALUATION.md) or hard (goals 22-28 cm away: tasks where choosing by simulation matters)",
-    )
-    p.add_argument(
-        "--max-actions",
-        type=_positive_int,
-        help=f"action budget per task (default: the task set's: paper {PAPER_BUDGET}, hard {Scenario.budget})",
-    )
-    p.add_argument(
-        "--candidates",
-        type=_positive_int,
-        help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
-    )
-    p.add_argument(
-        "--asm-settings",
-        choices=("lmjx", "paper"),
-        default="lmjx",
-        help="lmjx (default): with lmjx's refinements (edges that failed are not offered again while the "
-        "target stays put, the path length around obstacles as the score, Lazy capped at 32 tries and "
-        "taking its best when none helps); paper: the ASMs as the paper states them (none of these; Greedy "
-        "simulates a quarter of the edges over the target)",
-    )
-    p.add_argument(
-        "--when-stuck",
-        choices=("best", "options"),
-        default="best",
-        help="greedy, when no candidate is predicted to bring the target 5 mm closer: best (default, the paper's "
-        "Greedy) takes the best predicted all the same; options takes the candidate whose predicted state leaves "
-        "the most edges to offer (starts clear of the scene, acting on the target), the best predicted among "
-        "those with at least 80%% of the most (measured worse on the hard set's case-2 tunnel: docs/EVALUATION.md)",
-    )
-    p.add_argument(
-        "--late-start",
-        action="store_true",
-        help="where the edges with clear starts give fewer candidates than wanted, offer edges whose start lies "
-        "within 2 cm of a fixed obstacle (the tunnel's wall or roof) from their first state clear of the scene, "
-        "where the rest still acts on the target (default: such an edge is not offered; a lever for the tunnel, "
-        "docs/EVALUATION.md)",
-    )
-    p.add_argument(
-        "--push-weight",
-        type=_nonnegative_float,
-        default=None,
-        metavar="W",
-        help="greedy and lazy score a candidate by the cost of the target's way to the goal, each metre weighted "
-        "by 1 + W ln(median / n), n the map's edges that push toward the goal there (the counts take a few "
-        "minutes per map and scenario on a CPU, then are kept in lmjx's cache folder); default 1 (0 with "
-        "--asm-settings paper, which scores by the straight distance and takes no weight); 0: the path length "
-        "around the fixed obstacles alone (docs/EVALUATION.md)",
-    )
-    p.add_argument(
-        "--rescore-top",
-        type=_nonnegative_int,
-        default=None,
-        metavar="N",
-        help="greedy simulates its N best candidates again, each from --rescore-draws - 1 more starts with every "
-        "object's observed pose redrawn by the camera's noise (2 mm, 1.5 deg), and takes the one whose mean score "
-        "over all its starts is lowest (a push whose outcome hangs on millimetres no longer wins on one lucky "
-        "rollout; N x (K - 1) more rollouts a decision); default 8 (0 with --asm-settings paper); 0: off "
-        "(why: docs/EVALUATION.md, its method changes)",
-    )
-    p.add_argument(
-        "--rescore-draws",
-        type=_nonnegative_int,
-        default=8,
-        metavar="K",
-        help="starts per rescored candidate, the observed one included (default 8; at least 2)",
-    )
-    p.add_argument(
-        "--servo",
-        choices=("playback", "robot"),
-        default="robot",
-        help="how the planner's simulator tracks the arm's joint targets: robot (default: the robot's own joint "
-        "servo gains and torque limits, as its controller tracks them: simulated pushes lag and overshoot as the "
-        "arm's do) or playback (stiff servos with unlimited torque, the trajectory played back nearly exactly; "
-        "why the default: docs/EVALUATION.md, its method changes)",
-    )
-    _add_sim(p)
 
 
 def _nonnegative_float(text: str) -> float:
@@ -124,6 +25,118 @@ def _nonnegative_float(text: str) -> float:
     return value
 
 
+# Options that each set one lever, hidden from --help (the key says the same): (option, key, how argparse reads it)
+MOVED: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("--asm-settings", "asm_settings", {"choices": ("lmjx", "paper")}),
+    ("--when-stuck", "when_stuck", {"choices": ("best", "options")}),
+    ("--late-start", "late_start", {"action": "store_const", "const": True}),
+    ("--push-weight", "push_weight", {"type": _nonnegative_float}),
+    ("--rescore-top", "rescore_top", {"type": _nonnegative_int}),
+    ("--rescore-draws", "rescore_draws", {"type": _nonnegative_int}),
+    ("--servo", "servo", {"choices": ("playback", "robot")}),
+)
+LEVERS_EPILOG = (
+    "Research levers (the ASMs' settings, rescoring, the push weight, the servo model, ...): --set KEY=VALUE or "
+    "--planner-config FILE; --help-levers lists them (docs/PLANNER.md)."
+)
+
+
+class _HelpLevers(argparse.Action):
+    """--help-levers: print every lever with its default and meaning, and exit."""
+
+    def __init__(self, option_strings: list[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        import os
+
+        from lmjx.evaluation.levers import levers_text
+
+        try:
+            print(levers_text(), flush=True)
+        except BrokenPipeError:  # (`lmjx plan --help-levers | head`): not an error
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        parser.exit()
+
+
+def _add_sim(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--sim",
+        choices=("auto", "cpu", "cpu-near", "gpu"),
+        default="auto",
+        help="the planner's simulator: gpu (MuJoCo Warp on a CUDA GPU), cpu (C MuJoCo on all cores), cpu-near "
+        "(C MuJoCo, the target and its 3 nearest objects) or auto (default: gpu where it can run, else cpu)",
+    )
+
+
+def _add_planner_options(p: argparse.ArgumentParser) -> None:
+    """The planner's options, shared by plan and evaluate."""
+    from lmjx.sim.scenarios import PAPER_BUDGET
+
+    p.add_argument(
+        "--tasks",
+        choices=("paper", "hard"),
+        default="paper",
+        help="the task set: paper (default; goals and budget calibrated to the paper's outcomes) or hard (goals "
+        "22-28 cm away); docs/EVALUATION.md",
+    )
+    p.add_argument(
+        "--max-actions", type=_positive_int, metavar="N", help=f"action budget per task (default {PAPER_BUDGET})"
+    )
+    p.add_argument(
+        "--candidates",
+        type=_positive_int,
+        metavar="N",
+        help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
+    )
+    _add_sim(p)
+    p.add_argument(
+        "--planner-config", metavar="FILE", help="the planner's levers from a TOML file of KEY = VALUE lines"
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set one lever, e.g. --set asm_settings=paper (repeatable; wins over --planner-config)",
+    )
+    p.add_argument("--help-levers", action=_HelpLevers, help="list the levers with their defaults and meanings; exit")
+    for option, key, how in MOVED:
+        p.add_argument(option, dest=key, default=None, help=argparse.SUPPRESS, **how)
+
+
+def _text(value: Any) -> str:
+    """A lever's value as --set takes it."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def planner_levers(args: argparse.Namespace) -> dict[str, Any]:
+    """The levers the command line gives: --planner-config's, then --set's, then the moved
+    options' and --max-actions and --candidates (each of these wins over what came before)."""
+    from lmjx.evaluation.levers import parse_sets, read_levers
+
+    levers = read_levers(args.planner_config) if args.planner_config else {}
+    levers |= parse_sets(args.set)
+    levers |= {key: getattr(args, key) for _, key, _ in MOVED if getattr(args, key) is not None}
+    if args.max_actions is not None:
+        levers["max_actions"] = args.max_actions
+    if args.candidates is not None:
+        levers["greedy_candidates"] = args.candidates
+    return levers
+
+
+def moved_notes(args: argparse.Namespace) -> list[str]:
+    """One line per option of one lever given, saying how its key is set."""
+    return [
+        f"lmjx {args.command}: note: {option} moved to --set {key}={_text(getattr(args, key))}"
+        for option, key, _ in MOVED
+        if getattr(args, key) is not None
+    ]
+
+
 def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
     """The planner's simulator for --sim, announced on stderr."""
     from lmjx.evaluation.trial import resolve_simulator
@@ -133,33 +146,24 @@ def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
     return name, why
 
 
-def _planner_config(args: argparse.Namespace, asm: str, sim: str) -> PlannerConfig:
-    from lmjx.api import planner_config
-
-    return planner_config(
-        asm, sim, args.max_actions, args.candidates, args.asm_settings, args.when_stuck, args.late_start,
-        args.push_weight, args.rescore_top, args.rescore_draws, args.servo,
-    )  # fmt: skip
-
-
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "plan",
         help="one manipulation task with simulation in the loop (paper Algorithm 3)",
-        description="Push the target cube of a scenario into its goal region using the edges of a map, choosing "
-        "each action with an action selection mechanism (random, lazy or greedy) and executing it in a simulated "
-        "'real' world whose physics differ from the planner's.  The times printed: planning is wall-clock time "
-        "here, less any compiling of kernels on first use (printed apart); robot time is the simulated time the "
-        "arm spends executing the actions.",
+        description="Push the target cube of a scenario into its goal region with the edges of a map, choosing "
+        "each action by an action selection mechanism and executing it in a simulated 'real' world whose physics "
+        "differ from the planner's.  Planning time is wall clock less compiling on first use (printed apart); "
+        "robot time is the simulated time the arm spends executing the actions.",
+        epilog=LEVERS_EPILOG,
     )
-    p.add_argument("--map", required=True, help="a map file from lmjx build-map")
+    p.add_argument("--map", required=True, metavar="FILE", help="a map file from lmjx build-map")
     p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
-    p.add_argument("--failure", help="refuse the map unless it was built for this failure")
+    p.add_argument("--failure", metavar="SPEC", help="refuse the map unless it was built for this failure")
     _add_robot(p, from_map=True)
     p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
     _add_planner_options(p)
-    p.add_argument("--render", help="write a rendering of the trial: .png (frame strip), .gif or .mp4")
+    p.add_argument("--render", metavar="FILE", help="write a rendering of the trial: .png (frames), .gif or .mp4")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     _add_device(p)
     p.set_defaults(run=cmd_plan)
@@ -169,14 +173,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_plan(args: argparse.Namespace) -> int:
     from lmjx.api import plan_task
 
+    notes = moved_notes(args)  # said once the arguments are checked (a refusal stays one line)
+
+    def say(line: str | None = None) -> None:
+        while notes:
+            print(notes.pop(0), file=sys.stderr)
+        if line is not None:
+            print(f"lmjx plan: {line}", file=sys.stderr)
+
     r = plan_task(
-        args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, max_actions=args.max_actions,
-        candidates=args.candidates, asm_settings=args.asm_settings, when_stuck=args.when_stuck,
-        late_start=args.late_start, push_weight=args.push_weight, rescore_top=args.rescore_top,
-        rescore_draws=args.rescore_draws, servo=args.servo, sim=args.sim,
+        args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
-        failure=args.failure, render=args.render, say=lambda line: print(f"lmjx plan: {line}", file=sys.stderr),
+        failure=args.failure, render=args.render, say=say, planner=planner_levers(args),
     )  # fmt: skip
+    say()
     res, summary = r.trial, r.summary()
     lines = [
         f"failure {r.failure}, scenario {args.scenario} ({args.tasks} tasks), {args.asm}, seed {args.seed}: "

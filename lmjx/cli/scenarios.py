@@ -39,7 +39,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     from lmjx.runtime.fileio import check_writable
     from lmjx.sim.figure import scenario_picture
     from lmjx.sim.render import gl_problem
-    from lmjx.sim.scenarios import SCENARIOS, sample_layout, scenario
+    from lmjx.sim.scenarios import SCENARIOS, resolve_task
 
     out = Path(args.out)
     check_writable(out / "scenario1.png", "pictures")
@@ -49,9 +49,10 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
         print(f"note: drawing the diagrams only: {problem}", file=sys.stderr)
     q = park_pose(robot, parse_failure("case2" if "case2" in robot.profile.presets else "none", robot))
     for n in sorted(SCENARIOS):
-        sc = scenario(n, robot.profile.task_scale, args.tasks)
+        task = resolve_task(n, robot, args.tasks)
+        sc = task.scenario
         path = out / f"scenario{n}.png"
-        scenario_picture(robot, sc, sample_layout(sc, args.seed), q, path, with_render=problem is None)
+        scenario_picture(robot, sc, task.layout(args.seed), q, path, with_render=problem is None)
         head = f"scenario {n} ({args.tasks} tasks, {sc.budget} actions): {sc.title}"
         print(f"{head}\n  {sc.description}\n  picture: {path}")
     return 0

@@ -27,7 +27,7 @@ from lmjx.planner.transit import TransitPlanner
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path, write_text_atomic
 from lmjx.runtime.progress import Progress
-from lmjx.sim.scenarios import TASK_SETS, scenario
+from lmjx.sim.scenarios import TASK_SETS, resolve_task, scenario
 from lmjx.types import ASMS, PlannerConfig
 
 ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
@@ -140,8 +140,9 @@ def evaluate(
     threads = usable_cores()
     for s in sorted({k[1] for k in todo}):
         group = [k for k in todo if k[1] == s]
+        task = resolve_task(s, robot, config.tasks)  # once per scenario: its trials share it and the simulator
         sim = (
-            make_simulator(robot, s, config.backend, config.tasks, servo=config.planner.servo)
+            make_simulator(robot, task, config.backend, servo=config.planner.servo)
             if any(k[2] != "random" for k in group)
             else None
         )
@@ -150,7 +151,7 @@ def evaluate(
         trials = []
         for f, _, a, seed in group:
             pc = PlannerConfig(**{**config.planner.__dict__, "asm": a})
-            setup = setup_trial(robot, maps[f], s, pc, seed, sim if a != "random" else None, transits[f], config.tasks)
+            setup = setup_trial(robot, maps[f], task, pc, seed, sim if a != "random" else None, transits[f])
             trials.append((setup.planner.trial(setup.world, setup.layout, setup.planner_seed), setup.world))
         bar.set_description(f"scenario {s}: {len(group)} trials together")
 

@@ -1,9 +1,11 @@
-"""One task trial, wired up: map + scenario + ASM + seed -> planner, simulator, "real" world;
+"""One task trial, wired up: map + task + ASM + seed -> planner, simulator, "real" world;
 and the choice of the planner's simulator.
 
-Seeds: a trial's seed fixes the scenario's initial layout and the "real" world's
-perturbations (so every ASM and failure faces the same trials) and, offset by the ASM, the
-planner's own random choices.
+The task comes resolved (`lmjx.sim.scenarios.Task`, made once by the entry point); the
+planner's scene is built once per simulator, the "real" world's once per trial (its physics
+are drawn from the trial's seed).  Seeds: a trial's seed fixes the task's initial layout and
+the "real" world's perturbations (so every ASM and failure faces the same trials) and, offset
+by the ASM, the planner's own random choices.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from lmjx.planner.records import TrialResult
 from lmjx.planner.transit import TransitPlanner
 from lmjx.sim.cpu import CpuSimulator
 from lmjx.sim.realworld import SimulatedRealWorld, real_gains
-from lmjx.sim.scenarios import Layout, sample_layout, scenario
+from lmjx.sim.scenarios import Layout, Task
 from lmjx.sim.scene import Physics, build_scene
 from lmjx.types import ASMS, SERVOS, PlannerConfig, Simulator
 
@@ -65,55 +67,62 @@ def planner_physics(robot: Robot, servo: str = "playback") -> Physics:
     return Physics(servo_kp=kp, servo_kv=kv, servo_force=tuple(robot.tau_max))
 
 
+def check_task(robot: Robot, task: Task) -> None:
+    """Refuse a task placed for another robot (its positions are scaled for that robot's size)."""
+    if task.robot != robot.key:
+        raise ConfigError(f"{task.name} is placed for the robot {task.robot}, not {robot.key}; resolve it for "
+                          f"{robot.key} (lmjx.sim.scenarios.resolve_task)")  # fmt: skip
+
+
 def make_simulator(
     robot: Robot,
-    scenario_number: int,
+    task: Task,
     backend: str = "cpu",
-    tasks: str = "paper",
     gpu_config=None,
     servo: str = "playback",
 ) -> Simulator:
-    """The planner's simulator for a scenario: C MuJoCo on all host cores (the whole scene,
-    or "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the
-    whole scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device), with the servo
-    model `servo` (`planner_physics`; the planner passes its own, `PlannerConfig.servo`, "robot"
-    by default; "playback" here, the model the simulators' agreement tests and benchmarks
-    measure).  `backend` is resolved already (see `resolve_simulator`)."""
-    sc = scenario(scenario_number, robot.profile.task_scale, tasks)
-    physics = planner_physics(robot, servo)
+    """The planner's simulator for a task: C MuJoCo on all host cores (the whole scene, or
+    "cpu-near": the target and its 3 nearest objects), or MuJoCo Warp on the GPU (the whole
+    scene; `gpu_config`: its `GpuSimConfig`, e.g. another Warp device), with the servo model
+    `servo` (`planner_physics`; the planner passes its own, `PlannerConfig.servo`, "robot" by
+    default; "playback" here, the model the simulators' agreement tests and benchmarks
+    measure).  `backend` is resolved already (see `resolve_simulator`).  The scene is built
+    once, here, and kept by the simulator for every decision of every trial it serves."""
+    check_task(robot, task)
+    if backend not in ("cpu", "cpu-near", "gpu"):
+        raise ConfigError(f"unknown simulator '{backend}'; use cpu, cpu-near or gpu")
+    scene = build_scene(robot, task.scenario, planner_physics(robot, servo), fuse_static=backend == "gpu")
     if backend == "gpu":
         from lmjx.sim.gpu import GpuSimulator
 
-        return GpuSimulator(build_scene(robot, sc, physics, fuse_static=True), config=gpu_config)
+        return GpuSimulator(scene, config=gpu_config)
     if backend == "cpu-near":
-        return CpuSimulator(build_scene(robot, sc, physics), k_objects=4, robot=robot)
-    if backend != "cpu":
-        raise ConfigError(f"unknown simulator '{backend}'; use cpu, cpu-near or gpu")
-    return CpuSimulator(build_scene(robot, sc, physics))
+        return CpuSimulator(scene, k_objects=4, robot=robot)
+    return CpuSimulator(scene)
 
 
 def setup_trial(
     robot: Robot,
     map_file: MapFile,
-    scenario_number: int,
+    task: Task,
     config: PlannerConfig,
     seed: int,
     simulator: Simulator | None = None,
     transits: TransitPlanner | None = None,
-    tasks: str = "paper",
+    backend: str = "cpu",
 ) -> TrialSetup:
-    """A trial ready to run, on scenario `scenario_number` of the task set `tasks`.
-    `transits` may be shared by the trials of one map (it keeps what it learned about
-    transits through the park pose)."""
-    sc = scenario(scenario_number, robot.profile.task_scale, tasks)
+    """A trial of `task` ready to run.  `simulator`: the planner's, which may serve every
+    trial of one task (default: one made here on `backend`, see `make_simulator`, unless the
+    ASM is Random, which simulates nothing).  `transits` may be shared by the trials of one
+    map (it keeps what it learned about transits through the park pose)."""
+    check_task(robot, task)
     assert map_file.reach is not None and map_file.edges is not None
-    sim = simulator or (
-        make_simulator(robot, scenario_number, tasks=tasks, servo=config.servo) if config.asm != "random" else None
-    )
-    planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, sc, sim, config, transits)
-    return TrialSetup(
-        planner, sample_layout(sc, seed), SimulatedRealWorld(robot, seed), seed * 7 + ASMS.index(config.asm)
-    )
+    layout = task.layout(seed)
+    if simulator is None and config.asm != "random":
+        simulator = make_simulator(robot, task, backend, servo=config.servo)
+    planner = Planner(robot, map_file.failure, map_file.reach, map_file.edges, task.scenario, simulator, config,
+                      transits)  # fmt: skip
+    return TrialSetup(planner, layout, SimulatedRealWorld(robot, seed), seed * 7 + ASMS.index(config.asm))
 
 
 def run_trial(setup: TrialSetup) -> TrialResult:

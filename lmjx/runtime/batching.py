@@ -26,9 +26,8 @@ KEEP_BLOCKS = 16  # blocks a device returns its kept rows in (see ChunkedKernel)
 
 def _code_version() -> str:
     """A hash of lmjx's version and the source of everything a kernel's trace depends on."""
-    from lmjx import __version__
-
     import kernels
+    from lmjx import __version__
 
     here = Path(__file__).parent
     h = hashlib.sha256(__version__.encode())

@@ -24,17 +24,23 @@ tunnel's length) about the robot's base by the robot's `task_scale`, so that the
 scenarios sit at the same place in the reach of an arm of another size (objects keep their
 sizes).  `sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
 uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of its nominal pose,
-keeping objects apart.  Nothing here simulates; `lmjx.sim.scene` builds the MuJoCo models.
+keeping objects apart.  `resolve_task` makes a scenario of a task set, placed for a robot, a
+`Task`: the value the entry points make once and every stage below them takes.  Nothing here
+simulates; `lmjx.sim.scene` builds the MuJoCo models.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lmjx.errors import ConfigError
+
+if TYPE_CHECKING:
+    from lmjx.model.robot import Robot
 
 CUBE = (0.025, 0.025, 0.025)
 TARGET_RGBA = (1.0, 0.8, 0.05, 1.0)
@@ -213,7 +219,7 @@ def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
     positions scaled by `scale` about the robot's base (a robot's `profile.task_scale`; 1
     for the Panda)."""
     if number not in SCENARIOS:
-        raise ConfigError(f"unknown scenario {number}; the scenarios are 1, 2 and 3")
+        raise ConfigError(f"scenario {number!r} does not exist; use 1 (clutter), 2 (tunnel) or 3 (eleven boxes)")
     if tasks not in TASK_SETS:
         raise ConfigError(f"unknown task set '{tasks}'; use paper or hard")
     if not (math.isfinite(scale) and 0.2 <= scale <= 5.0):
@@ -239,6 +245,44 @@ def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
         fixed=tuple(stretched(b) for b in sc.fixed),
         goal_center=(sc.goal_center[0] * scale, sc.goal_center[1] * scale),
     )
+
+
+@dataclass(frozen=True)
+class Task:
+    """A task resolved once for one robot (`resolve_task`): what is on the table and where the
+    target must go (`scenario`: the target, the movable and fixed obstacles, the goal region,
+    placed for the robot, and the action budget), the robot it is placed for, and what the task
+    is called.  The entry points (`lmjx.plan_task`, `lmjx evaluate`) make one; the stages below
+    them take it, or its `scenario`, never a scenario's number."""
+
+    scenario: Scenario
+    robot: str  # the key of the robot the positions are placed for (`Robot.key`)
+    name: str  # how messages call it ("scenario 1")
+
+    @property
+    def number(self) -> int:
+        """The shipped scenario's number (1, 2, 3), as results record it."""
+        return self.scenario.number
+
+    @property
+    def tasks(self) -> str:
+        """The task set it belongs to ("paper" or "hard")."""
+        return self.scenario.tasks
+
+    @property
+    def budget(self) -> int:
+        """The task's action budget (a planner's default max_actions)."""
+        return self.scenario.budget
+
+    def layout(self, seed: int) -> Layout:
+        """The objects' initial poses for a trial seed (`sample_layout`)."""
+        return sample_layout(self.scenario, seed)
+
+
+def resolve_task(number: int, robot: Robot, tasks: str = "paper") -> Task:
+    """Scenario `number` (1, 2, 3) of the task set `tasks` ("paper" or "hard"), placed for
+    `robot` (its table positions scaled by the robot's `profile.task_scale`)."""
+    return Task(scenario(number, robot.profile.task_scale, tasks), robot.key, f"scenario {number}")
 
 
 def _corners(half: tuple[float, float, float], x: float, y: float, yaw: float, grow: float) -> np.ndarray:
