@@ -156,6 +156,8 @@ def _replayed(args: argparse.Namespace, record: Any) -> Any:
     bad = rep.first_disagreement()
     if bad is not None:
         _say(f"the replay parts from the record at action {bad.index + 1} (another map or version of lmjx?)")
+    elif not rep.complete:
+        _say(f"the replay stops at action {len(rep.actions) + 1}: no transit to its edge (another map?)")
     return rep
 
 

@@ -71,16 +71,40 @@ class _Page:
         self.ws.close()
 
 
+def _steady_capture(page: _Page, end: float, every: float = 2.0, still: float = 0.5) -> bytes:
+    """Capture the window until two captures `every` seconds apart differ by less than `still`
+    (mean absolute difference of 0-255 values: the scene's fade-in is over; it takes many
+    frames, and software WebGL draws few a second), or until `end`; the last capture."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    def grab() -> tuple[bytes, np.ndarray]:
+        png = base64.b64decode(page.call("Page.captureScreenshot", format="png")["data"])
+        return png, np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.float32)
+
+    png, last = grab()
+    while time.monotonic() < end:
+        time.sleep(every)
+        png, now = grab()
+        if float(np.abs(now - last).mean()) < still:
+            break
+        last = now
+    return png
+
+
 def screenshot(
     url: str,
     out: str | Path,
     size: tuple[int, int] = (1200, 800),
     settle: float = 4.0,
-    timeout: float = 90.0,
+    timeout: float = 120.0,
     chromium: str | None = None,
 ) -> Path:
     """Open `url` in headless Chromium at `size` (width, height), wait until the page has a
-    drawn WebGL canvas and then `settle` seconds more, and write a PNG of the window to `out`."""
+    WebGL canvas, `settle` seconds more, and until the picture holds still, and write a PNG
+    of the window to `out`."""
     exe = chromium or find_chromium()
     if exe is None:
         raise FileNotFoundError("no chromium found (Debian: apt install chromium)")
@@ -112,11 +136,10 @@ def screenshot(
                 time.sleep(0.25)
             time.sleep(settle)
             page.evaluate(CLOSE_NOTICES)
-            time.sleep(0.5)
-            shot = page.call("Page.captureScreenshot", format="png")
+            png = _steady_capture(page, end)
         finally:
             page.close()
-        Path(out).write_bytes(base64.b64decode(shot["data"]))
+        Path(out).write_bytes(png)
         return Path(out)
     finally:
         proc.terminate()

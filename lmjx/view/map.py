@@ -109,6 +109,8 @@ class MapView:
                 batched_positions=centres,
                 batched_colors=rgb,
                 lod="off",
+                cast_shadow=False,
+                receive_shadow=False,  # thin tiles on the table: their own shadows would speckle them
                 visible=len(centres) > 0 and (name == "pm" or shown == SHOWN[0]),
             )
             handle.on_click(self._clicked)

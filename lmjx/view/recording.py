@@ -57,15 +57,28 @@ def decode_recording(data: bytes) -> tuple[float, list[SceneMessage]]:
     return float(head["durationSeconds"]), messages
 
 
+UPDATES = {
+    "SetPositionMessage": "position",
+    "SetOrientationMessage": "wxyz",
+    "SetSceneNodeVisibilityMessage": "visible",
+}
+
+
 def latest_nodes(messages: list[SceneMessage]) -> dict[str, SceneMessage]:
-    """The scene's nodes as the last message that added each (by name) leaves them, less the
-    ones removed after."""
+    """The scene's nodes as the messages leave them: per name, the message that added it,
+    its fields completed with its latest `position`, `wxyz` and `visible` (their defaults
+    where never set); nodes removed after are left out."""
     nodes: dict[str, SceneMessage] = {}
     for m in messages:
         if m.name is None:
             continue
         if m.type == "RemoveSceneNodeMessage":
             nodes.pop(m.name, None)
-        elif m.type.endswith("Message") and "props" in m.fields:
-            nodes[m.name] = m
+        elif m.type in UPDATES:
+            if m.name in nodes:
+                key = UPDATES[m.type]
+                nodes[m.name].fields[key] = m.fields[key]
+        elif "props" in m.fields:
+            fields = {"position": (0.0, 0.0, 0.0), "wxyz": (1.0, 0.0, 0.0, 0.0), "visible": True, **m.fields}
+            nodes[m.name] = SceneMessage(m.time, m.type, fields)
     return nodes

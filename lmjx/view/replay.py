@@ -26,7 +26,7 @@ from lmjx.types import CONTROL_DT
 from lmjx.view.trialrecord import TrialRecord
 
 FRAME_RATE = 10.0  # frames kept per second of execution
-AGREE_M = 0.002  # a replayed action agrees with the record when the target moved the same within this [m]
+AGREE_M = 0.00015  # the record's displacements are rounded to 0.1 mm: a replayed action agrees within that
 
 
 @dataclass
@@ -45,10 +45,8 @@ class ActionMark:
     edge_path: np.ndarray  # (m, 3) ... along the edge
     moved_m: float  # the target's displacement in the replay
     recorded_moved_m: float | None  # ... in the record
-
-    @property
-    def agrees(self) -> bool:
-        return self.recorded_moved_m is None or abs(self.moved_m - self.recorded_moved_m) <= AGREE_M
+    recorded_route: str | None = None  # the transit's route in the record
+    agrees: bool = True  # this action and every one before it did what the record says
 
 
 @dataclass
@@ -60,6 +58,11 @@ class Replay:
     frames: np.ndarray  # (T, model.nq) qpos
     times: np.ndarray  # (T,) [s] of execution
     actions: list[ActionMark] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Every recorded action was replayed (else one found no transit in the replay)."""
+        return len(self.actions) == len(self.record.steps)
 
     def first_disagreement(self) -> ActionMark | None:
         return next((a for a in self.actions if not a.agrees), None)
@@ -85,7 +88,8 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
     sc = scenario(record.scenario, robot.profile.task_scale, record.tasks)
     layout = sample_layout(sc, record.seed)
     world = SimulatedRealWorld(robot, record.seed)
-    transits = TransitPlanner(robot, map_file.failure)
+    # a GPU run's transits were checked by the batched JAX kernel, a CPU run's by C MuJoCo: the same here
+    transits = TransitPlanner(robot, map_file.failure, batched=record.batched)
     transits.late_start = record.late_start
     frames: list[np.ndarray] = []
     times: list[float] = []
@@ -123,6 +127,8 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
         n_transit = a.transit_steps
         edge_start = start + round(n_transit * CONTROL_DT * FRAME_RATE)
         recorded = s.get("target_moved_m")
+        same = recorded is None or abs(float(obs.target_moved_m) - float(recorded)) <= AGREE_M
+        same = same and s.get("transit_route", a.route) == a.route and (not marks or marks[-1].agrees)
         marks.append(
             ActionMark(
                 index=k,
@@ -137,6 +143,8 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
                 edge_path=path[n_transit:],
                 moved_m=float(obs.target_moved_m),
                 recorded_moved_m=None if recorded is None else float(recorded),
+                recorded_route=s.get("transit_route"),
+                agrees=same,
             )
         )
         came_from, trail = after_executing(a, trail, bundle.q_start.dtype)

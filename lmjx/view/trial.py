@@ -22,6 +22,10 @@ SPEEDS = ("0.5x", "1x", "2x", "4x")
 ROOT = "/trial"
 
 
+def _cm(v: float | None) -> str:
+    return "?" if v is None else f"{v * 100:.2f} cm"
+
+
 def _segments(path: np.ndarray) -> np.ndarray:
     return np.stack([path[:-1], path[1:]], axis=1).astype(np.float32) if len(path) > 1 else np.zeros((0, 2, 3))
 
@@ -108,8 +112,11 @@ class TrialView:
             "The replay agrees with the record (the target's displacement after each action)."
             if bad is None
             else f"The replay parts from the record at action {bad.index + 1}: the target moved "
-            f"{bad.moved_m * 100:.1f} cm, the record says {bad.recorded_moved_m * 100:.1f} cm (another map or lmjx?)."
+            f"{bad.moved_m * 100:.2f} cm ({bad.route}), the record says {_cm(bad.recorded_moved_m)} "
+            f"({bad.recorded_route or '?'}): another map, or another version of lmjx?"
         )
+        if not rep.complete:
+            check += f" The replay stops at action {len(rep.actions) + 1}: no transit to its edge from where it stands."
         gui.add_markdown(f"**Trial {r.title()}**  \n{r.source}  \n{check}")
         self.slider = gui.add_slider(
             "Time (s)", min=0.0, max=max(float(rep.times[-1]), 0.1), step=1.0 / FRAME_RATE, initial_value=0.0

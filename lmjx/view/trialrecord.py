@@ -25,6 +25,7 @@ class TrialRecord:
     seed: int
     steps: tuple[dict, ...]  # the executed actions (edge >= 0), in order: edge, transit_route, target_moved_m, ...
     late_start: bool = False
+    batched: bool = False  # its planner's simulator was the GPU's (transits checked by the batched kernel)
     success: bool | None = None
     end: str = ""
     final_distance_m: float | None = None
@@ -53,6 +54,7 @@ def from_dict(r: dict, source: str) -> TrialRecord:
             seed=int(r["seed"]),
             steps=tuple(s for s in steps if int(s.get("edge", -1)) >= 0),
             late_start=bool((r.get("asm_settings") or {}).get("late_start", False)),
+            batched=str(r.get("sim", r.get("simulator", ""))) == "gpu",
             success=bool(r["success"]) if "success" in r else None,
             end=str(r.get("end", "")),
             final_distance_m=r.get("final_distance_m"),
