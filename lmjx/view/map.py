@@ -18,7 +18,7 @@ import numpy as np
 from lmjx.view import style
 from lmjx.view.mapdata import CellEdges, MapData
 from lmjx.view.options import DRAWINGS, LABEL_SETS, QUANTITIES, SHOWN
-from lmjx.view.shapes import ArmPoser, arm_geoms, box, geom_mesh, geom_rgb
+from lmjx.view.shapes import ArmPoser, arm_geoms, box, concatenate, geom_mesh, geom_rgb
 
 SWEPT_POSES = 5  # arm poses drawn per edge when the arm is swept along it
 SWEPT_CAP = 30  # edges drawn with the swept arm, at most (each is a mesh of its own)
@@ -154,7 +154,13 @@ class MapView:
         labels.on_update(relabel)
         shown.on_update(lambda _: setattr(self.cells["npm"], "visible", shown.value == SHOWN[0]))
         go.on_click(lambda _: self.select(int(self.pick_iy.value), int(self.pick_ix.value)))
-        busiest.on_click(lambda _: self.select(*d.busiest_cell()) if d.busiest_cell() else None)
+
+        def select_busiest(_: Any) -> None:
+            cell = d.busiest_cell()
+            if cell is not None:
+                self.select(*cell)
+
+        busiest.on_click(select_busiest)
 
         def restyle(_: Any) -> None:
             self.cap, self.quantity, self.drawing = int(cap.value), quantity.value, drawing.value
@@ -212,21 +218,11 @@ class MapView:
             scene.remove_by_name("/map/edges/paths")
             for k, (q, c) in enumerate(zip(sel.q, colours, strict=True)):
                 picks = np.unique(np.linspace(0, len(q) - 1, SWEPT_POSES).round().astype(int))
-                mesh = self._swept_mesh(q[picks])
+                mesh = concatenate([self.poser.mesh(x) for x in q[picks]])
                 name = f"/map/edges/swept/{k}"
                 scene.add_mesh_simple(name, mesh.vertices, mesh.faces, color=tuple(int(v) for v in c), opacity=0.35)
                 self._swept.append(name)
         self.legend.content = self._legend(sel, x, y)
-
-    def _swept_mesh(self, qs: np.ndarray):
-        from lmjx.view.shapes import Mesh
-
-        parts = [self.poser.mesh(q) for q in qs]
-        base = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
-        return Mesh(
-            np.concatenate([p.vertices for p in parts]),
-            np.concatenate([p.faces + b for p, b in zip(parts, base, strict=True)]).astype(np.uint32),
-        )
 
     def _legend(self, sel: CellEdges, x: float, y: float) -> str:
         d = self.data

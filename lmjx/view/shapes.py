@@ -101,18 +101,27 @@ def arm_geoms(m: mujoco.MjModel, robot_bodies: set[str]) -> np.ndarray:
     )
 
 
+def concatenate(meshes: list[Mesh]) -> Mesh:
+    """The meshes as one (their vertices in one array, the faces renumbered)."""
+    if not meshes:
+        return Mesh(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32))
+    base = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+    return Mesh(
+        np.concatenate([m.vertices for m in meshes]).astype(np.float32),
+        np.concatenate([m.faces + b for m, b in zip(meshes, base, strict=True)]).astype(np.uint32),
+    )
+
+
 def merged(meshes: list[Mesh], positions: np.ndarray, wxyzs: np.ndarray) -> Mesh:
     """The meshes placed at their poses, as one mesh."""
-    verts, faces, base = [], [], 0
+    placed = []
     for mesh, pos, quat in zip(meshes, positions, wxyzs, strict=True):
         R = np.empty(9)
         mujoco.mju_quat2Mat(R, np.asarray(quat, np.float64))
-        verts.append(mesh.vertices @ R.reshape(3, 3).T.astype(np.float32) + np.asarray(pos, np.float32))
-        faces.append(mesh.faces + base)
-        base += len(mesh.vertices)
-    if not verts:
-        return Mesh(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32))
-    return Mesh(np.concatenate(verts).astype(np.float32), np.concatenate(faces).astype(np.uint32))
+        placed.append(
+            Mesh(mesh.vertices @ R.reshape(3, 3).T.astype(np.float32) + np.asarray(pos, np.float32), mesh.faces)
+        )
+    return concatenate(placed)
 
 
 class ArmPoser:

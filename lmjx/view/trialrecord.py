@@ -136,10 +136,10 @@ def map_for(record: TrialRecord, maps: list[str] | None) -> Path:
     if maps and len(maps) == 1:
         return Path(maps[0])
     if maps:
-        from lmjx.mapfile.read import load_map
+        from lmjx.view.mapdata import MapData
 
         for m in maps:
-            with load_map(m, lazy=True) as opened:
+            with MapData(m) as opened:  # (its header and reach map: at once, whatever its size)
                 if opened.failure.spec == record.failure:
                     return Path(m)
         raise ConfigError(f"none of the --map files holds the failure {record.failure} of trial {record.key}")
