@@ -29,8 +29,7 @@ def write_push_counts(edges: h5py.Group, entries: list, attrs: dict) -> None:
     )
     for name, value in attrs.items():
         g.attrs[name] = value
-    ny, nx = edges.file["reach/labels"].shape
-    counts = np.stack([e.counts for e in entries]).astype(np.int32) if entries else np.zeros((0, ny, nx), np.int32)
+    counts = np.stack([e.counts for e in entries]).astype(np.int32)  # (the robot's built-in scenarios: some)
     for name, data, dtype, doc in (
         ("key", [e.key for e in entries], STR_DTYPE, "the planner's name of each entry's counts (a hash)"),
         ("scenario", [e.scenario for e in entries], np.int8, "scenario number (1, 2, 3)"),
@@ -40,7 +39,7 @@ def write_push_counts(edges: h5py.Group, entries: list, attrs: dict) -> None:
                               track_times=False)  # fmt: skip
         ds.attrs["doc"] = doc
     ds = g.create_dataset("counts", data=counts, compression="gzip", compression_opts=4, shuffle=True,
-                          chunks=(1, ny, nx) if len(counts) else None, track_times=False)  # fmt: skip
+                          chunks=(1, *counts.shape[1:]), track_times=False)  # fmt: skip
     ds.attrs["doc"] = "(entries, ny, nx) edges pushing toward the goal over each reach cell"
 
 

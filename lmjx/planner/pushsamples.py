@@ -100,6 +100,17 @@ def _program(robot: Robot, rows: int, budget: int):
         return _PROGRAMS[key]
 
 
+def compile_program(robot: Robot) -> None:
+    """Compile the device program `push_samples` runs on this platform for `robot` (its
+    first run compiles it otherwise)."""
+    nt = len(robot.arm.table_caps)
+    if nt:
+        rows = _rows()
+        program = _program(robot, rows, rows * nt // BUDGET_SHARE)
+        zeros = (np.zeros((rows + 1, robot.nq), np.float32), np.zeros(rows, bool), np.zeros(nt, np.float32))
+        fetch(list(program(*zeros, np.zeros(2, np.int32))))
+
+
 def _runs(lengths: np.ndarray, rows: int) -> list[tuple[int, int]]:
     """Edges [e0, e1) of each run: whole edges, at most `rows` states (or one longer edge)."""
     ends = np.cumsum(lengths)
