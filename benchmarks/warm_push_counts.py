@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             samples = bundle_samples(robot, m.edges, m.reach, HEIGHT, progress=True)
             print(f"{args.map}: the map's push samples in {time.perf_counter() - t0:.2f} s ({len(samples):,} samples "
-                  f"of {m.edges.n_edges:,} edges, {backend()})")  # fmt: skip
+                  f"of {m.edges.n_edges:,} edges, {backend()}: {samples.runs} runs in {samples.device_calls} device "
+                  "calls)")  # fmt: skip
         for s in numbers:
             sc = scenario(s, robot.profile.task_scale, args.tasks)
             field = scenario_field(robot, sc)

@@ -176,8 +176,11 @@ def test_a_run_with_more_low_pairs_than_its_budget_is_computed_in_parts(robot, p
     splits = []
     real = pushsamples._split
     monkeypatch.setattr(pushsamples, "_split", lambda *a: splits.append(a[4:6]) or real(*a))
-    _same_pairs(robot, plan, _bundle_of(b, edges), scenario(1, robot.profile.task_scale, "paper"))
+    bundle = _bundle_of(b, edges)
+    _same_pairs(robot, plan, bundle, scenario(1, robot.profile.task_scale, "paper"))
     assert len(splits) >= 3 and splits[0][0] == 0  # a run, then its halves (at least)
+    samples = pushfield.bundle_samples(robot, bundle, plan.reach, pushfield.HEIGHT, False)
+    assert samples.runs == -(-len(edges) // (pushsamples._rows() // 50)) and samples.device_calls == len(splits)
 
 
 def test_the_planner_reads_stored_counts_and_computes_those_a_map_lacks(robot, plan_map, tmp_path, monkeypatch, capsys):

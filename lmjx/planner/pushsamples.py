@@ -55,6 +55,8 @@ class PushSamples:
     group_start: np.ndarray  # (G,) int64
     group_edge: np.ndarray  # (G,) int32
     group_cell: np.ndarray  # (G,) int32
+    runs: int = 0  # runs of edges the device took
+    device_calls: int = 0  # its calls: a run over the budget took more
     _field_index: dict = field(default_factory=dict, repr=False)  # goal-field grid -> each sample's cell in it
 
     def __len__(self) -> int:
@@ -182,7 +184,8 @@ class _Run:
         has_next[:n] = (k + 1 < lengths[edge]) & (lengths[edge] >= MIN_EDGE_STATES)
         pieces = _split(self.program, q, has_next, self.z_max, 0, n, self.budget)
         index, low, next_xy = (np.concatenate(x) for x in zip(*pieces, strict=True))
-        return self._host_pass(index, low, next_xy, edge, k, e0)
+        # (a run over the budget is computed again in halves: 2 x pieces - 1 calls)
+        return (*self._host_pass(index, low, next_xy, edge, k, e0), 2 * len(pieces) - 1)
 
     def _host_pass(self, index, low, next_xy, edge, k, e0) -> tuple:
         """The run's samples: the exact tests (height, motion, cell) in float64, sorted by
@@ -216,8 +219,9 @@ def _split(program, q, has_next, z_max, lo: int, hi: int, budget: int) -> list[t
 
 
 def _assemble(parts: list[tuple], height: float, n_edges: int) -> PushSamples:
+    calls = sum(part[-1] for part in parts)
     if parts:
-        k, p, p_next, edge, c = (np.concatenate(x) for x in zip(*parts, strict=True))
+        k, p, p_next, edge, c = (np.concatenate(x) for x in zip(*(part[:-1] for part in parts), strict=True))
     else:
         k, edge, c = (np.zeros(0, np.int32) for _ in range(3))
         p, p_next = np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
@@ -225,4 +229,4 @@ def _assemble(parts: list[tuple], height: float, n_edges: int) -> PushSamples:
     new[1:] = (edge[1:] != edge[:-1]) | (c[1:] != c[:-1])
     start = np.nonzero(new)[0]
     p, p_next = np.ascontiguousarray(p), np.ascontiguousarray(p_next)
-    return PushSamples(height, n_edges, k, p, p_next, start.astype(np.int64), edge[start], c[start])
+    return PushSamples(height, n_edges, k, p, p_next, start.astype(np.int64), edge[start], c[start], len(parts), calls)
