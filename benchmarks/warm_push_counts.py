@@ -23,12 +23,8 @@ import argparse
 import sys
 import time
 
-import numpy as np
-
 from lmjx.errors import LmjxError
-from lmjx.mapfile.read import load_map
-from lmjx.planner.pushfield import HEIGHT, bundle_samples, counts_for, counts_key, scenario_counts, scenario_field
-from lmjx.runtime.batching import backend
+from lmjx.runtime.cache import configure
 from lmjx.sim.scenarios import TASK_SETS, scenario
 
 SOURCES = {
@@ -50,6 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"warm_push_counts: bad --scenarios {args.scenarios!r}: {e}", file=sys.stderr)
         return 2
+    configure()  # lmjx's cache folder, as `lmjx plan` has it (before JAX starts): compiled programs, counts
+    import numpy as np
+
+    from lmjx.mapfile.read import load_map
+    from lmjx.planner.pushfield import HEIGHT, bundle_samples, counts_for, counts_key, scenario_counts, scenario_field
+    from lmjx.runtime.batching import backend
+
     try:
         m = load_map(args.map)
         if m.edges is None or m.reach is None:
