@@ -54,7 +54,7 @@ from lmjx import __version__
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
 from lmjx.edges.chunkfile import saved_chunks
-from lmjx.edges.index import capsule_ends_kernel
+from lmjx.edges.index import index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter
 from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts
 from lmjx.errors import ConfigError, OutputPathError
@@ -294,10 +294,12 @@ def _build_map(
                        for d in jax.local_devices()]  # fmt: skip
     else:
         kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half, ik_chunk=reach_cfg.chunk)]
-    # The edges' programs compile in a thread of their own while the reach map is computed
-    # (they do not depend on it).
-    # the edge programs and the spatial index's capsule program
-    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), capsule_ends_kernel(robot).compile()])
+    # The edges' programs and the spatial index's compile in a thread of their own while the
+    # reach map is computed (they do not depend on it; the index's on the grid's size only).
+    xs, ys = reach_cfg.grid()
+    warmed = _in_background(
+        lambda: [*(ks.warm() for ks in kernel_sets), warm_index(robot, len(xs), len(ys), reach_cfg.cell)]
+    )
     t0 = time.perf_counter()
     if reach is None:
         # every process computes the reach map (the edges are drawn from it)
@@ -310,6 +312,7 @@ def _build_map(
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
+    index_before = index_totals()
     writer: MapWriter | None = None
     main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
     jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
@@ -370,6 +373,8 @@ def _build_map(
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
+        # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the host
+        summary["index"] = index_totals(since=index_before)
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
     return summary

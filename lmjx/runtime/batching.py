@@ -307,6 +307,15 @@ class ChunkedKernel:
             raise ValueError(f"shared arrays {new} do not match the program's {old}")
         self.shared = self._placed(shared)
 
+    def launch(self, *parts: np.ndarray) -> dict[str, jax.Array]:
+        """One call of the program on exactly `chunk` items, its outputs left on the device,
+        by name (for device-side work that follows; a kernel with nothing kept)."""
+        if self._fn is None:
+            self.compile()
+        assert self._fn is not None and not self.compact and self.mesh is None
+        placed = [self._put(np.asarray(p, dtype=d)) for p, (d, _) in zip(parts, self.inputs, strict=True)]
+        return dict(zip(self._out, self._fn(*self.shared, *placed), strict=True))
+
     def run(
         self,
         *arrays: np.ndarray,
