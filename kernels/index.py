@@ -188,7 +188,7 @@ def index_pass(
     s = s0 + state
     in_block = state < n
     in_group = in_block & (s >= g_lo) & (s < g_hi)
-    edge = (jnp.searchsorted(starts, s, side="right") - 1).astype(jnp.int32)
+    edge = (jnp.searchsorted(starts, s, side="right", method="scan_unrolled") - 1).astype(jnp.int32)
     za = at[..., 2] - p["table_z"] - radii
     zb = bt[..., 2] - p["table_z"] - radii
     zlo = jnp.minimum(za, zb)
@@ -218,7 +218,9 @@ def index_pass(
     done = jnp.arange(shape.items, dtype=jnp.int32) < n_done
     total = jnp.where(n_done > 0, cum[jnp.maximum(n_done - 1, 0)], 0)
     slots = jnp.arange(shape.samples, dtype=jnp.int32)
-    owner = jnp.minimum(jnp.searchsorted(cum, slots, side="right"), shape.items - 1).astype(jnp.int32)
+    owner = jnp.minimum(jnp.searchsorted(cum, slots, side="right", method="scan_unrolled"), shape.items - 1).astype(
+        jnp.int32
+    )
     sampled = slots < total
     j = slots - (cum[owner] - k_eff[owner])
     frac = j.astype(jnp.float64) / jnp.maximum(k[owner] - 1, 1).astype(jnp.float64)
@@ -266,7 +268,7 @@ def extract_pairs(shape: IndexShape, bitmap: jnp.ndarray, off: jnp.ndarray, capa
     counts = jnp.sum(pop.reshape(c, w), axis=1, dtype=jnp.int32)
     cum = jnp.cumsum(pop, dtype=jnp.int32)  # pairs up to each word, inclusive
     rank = off + jnp.arange(capacity, dtype=jnp.int32)
-    i = jnp.minimum(jnp.searchsorted(cum, rank, side="right"), c * w - 1).astype(jnp.int32)
+    i = jnp.minimum(jnp.searchsorted(cum, rank, side="right", method="scan_unrolled"), c * w - 1).astype(jnp.int32)
     word = words[i]
     within = rank - (cum[i] - pop[i])  # the pair is the word's (within + 1)-th set bit
     prefix = jnp.asarray(np.array([(2 << m) - 1 for m in range(32)], np.uint64).astype(np.uint32))  # bits 0..m

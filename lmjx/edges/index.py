@@ -43,6 +43,7 @@ import jax
 import numpy as np
 
 from kernels.index import PARAMS, IndexShape, empty_bitmap, extract_pairs, index_pass, mark_cells, params_words
+from lmjx.edges.index_settle import merge_groups, settle_items
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import ChunkedKernel, backend
@@ -269,9 +270,9 @@ class ArmIndex:
         starts[1:] = np.cumsum(length)
         words = self._put(params_words(_params(grid, height, self.robot.arm.table_z)))
         run = _Run(self, grid, height, n, starts, words, launch)
-        edges = self.shape.edges
-        groups = [run.group(g0, min(g0 + edges, len(length))) for g0 in range(0, len(length), edges)]
-        cells, edges = _merge(groups, self.shape.cells)
+        g = self.shape.edges  # edges per bitmap
+        groups = [run.group(g0, min(g0 + g, len(length))) for g0 in range(0, len(length), g)]
+        cells, edges = merge_groups(groups, self.shape.cells)
         TOTALS.add(batches=1, states=n, pairs=len(cells), seconds=time.perf_counter() - t0)
         return cells, edges
 
@@ -318,7 +319,7 @@ class _Run:
         starts_d = ix._put(starts)
         bitmap = self.p["empty"]()
         flagged: list[tuple[int, np.ndarray, np.ndarray]] = []  # (block, item ids, ends)
-        host_blocks: list[int] = []
+        host_blocks: set[int] = set()
         inflight: collections.deque = collections.deque()
         passes = extra = borderline = 0
 
@@ -331,7 +332,7 @@ class _Run:
                 n_flag = int(counts[2])
                 borderline += n_flag
                 if n_flag > sh.flags:
-                    host_blocks.append(block)
+                    host_blocks.add(block)
                 elif n_flag:
                     ids, ends = jax.device_get((out.flag_ids, out.flag_ends))
                     flagged.append((block, ids[:n_flag], ends[:n_flag]))
@@ -355,7 +356,8 @@ class _Run:
                 settle(inflight.popleft())
         while inflight:
             settle(inflight.popleft())
-        for block in host_blocks:  # every item of the block (the device's marks of it are right, but incomplete)
+        # every item of such a block (the device's marks of it are right, but incomplete)
+        for block in sorted(host_blocks):
             a, b = self.ends(block)
             caps = list(sh.caps)
             a_h = np.concatenate([np.asarray(x) for x in a])[:, caps].reshape(-1, 3)
@@ -390,7 +392,9 @@ class _Run:
         # the cells tested around a sample: the neighbourhood of the largest low capsule of its
         # block's states; the item's own (its radius's) and the widest give the same cells
         # unless a hit lies between them, when the block's low capsules are needed
-        args = (ends[:, :3], ends[:, 3:], radii[cap], edge, self.grid, self.height, self.ix.robot.arm.table_z)
+        g = self.grid
+        args = (ends[:, :3], ends[:, 3:], radii[cap], edge, (g.x0, g.y0, g.cell, g.nx, g.ny), self.height,
+                self.ix.robot.arm.table_z)  # fmt: skip
         narrow = settle_items(*args, own)
         wide = settle_items(*args, np.full(len(cap), sh.reach))
         if not np.array_equal(narrow[0], wide[0]) or not np.array_equal(narrow[1], wide[1]):
@@ -439,81 +443,6 @@ class _Run:
             off += sz.out
         edges = np.concatenate(parts) + g0 if parts else np.zeros(0, np.int64)
         return edges.astype(np.int32), counts
-
-
-def _merge(groups: list[tuple[np.ndarray, np.ndarray]], n_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs of consecutive edge groups, each in (cell, edge) order, in (cell, edge) order."""
-    per_cell = np.sum([c for _, c in groups], axis=0)
-    cells = np.repeat(np.arange(n_cells, dtype=np.int32), per_cell)
-    if len(groups) == 1:
-        return cells, groups[0][0]
-    edges = np.empty(len(cells), np.int32)
-    at = np.zeros(n_cells, np.int64)  # where each cell's pairs start
-    at[1:] = np.cumsum(per_cell)[:-1]
-    for group_edges, counts in groups:
-        first = np.zeros(n_cells, np.int64)  # where each cell's pairs start in the group's
-        first[1:] = np.cumsum(counts)[:-1]
-        edges[np.repeat(at - first, counts) + np.arange(len(group_edges))] = group_edges
-        at += counts
-    return cells, edges
-
-
-def settle_items(
-    a: np.ndarray,
-    b: np.ndarray,
-    r: np.ndarray,
-    edge: np.ndarray,
-    grid: Grid,
-    height: float,
-    table_z: float,
-    reach: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The (cell, edge) pairs of (state, capsule) items, unique and sorted, by the index's
-    reference arithmetic (float64 numpy on the float32 ends): the capsule's low stretch
-    sampled every half cell, the cells within its radius of a sample among the `reach` cells
-    on each side of the sample's.
-
-    Args:
-      a, b: (m, 3) float32 capsule axis ends; r: (m,) radii; edge: (m,) each item's edge;
-      reach: (m,) cells tested on each side of a sample's cell.
-    """
-    a, b, r = np.asarray(a, np.float64), np.asarray(b, np.float64), np.asarray(r, np.float64)
-    edge, reach = np.asarray(edge, np.int64), np.asarray(reach, np.int64)
-    cell = grid.cell
-    za = a[:, 2] - table_z - r
-    zb = b[:, 2] - table_z - r
-    low = np.minimum(za, zb) <= height
-    a, b, za, zb, r, edge, reach = a[low], b[low], za[low], zb[low], r[low], edge[low], reach[low]
-    if not len(a):
-        return np.zeros(0, np.int32), np.zeros(0, np.int32)
-    dz = zb - za
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_h = np.where(np.abs(dz) > 1e-12, (height - za) / dz, 0.0)
-    t0 = np.where(za <= height, 0.0, np.clip(t_h, 0.0, 1.0))
-    t1 = np.where(zb <= height, 1.0, np.clip(t_h, 0.0, 1.0))
-    pa = a[:, :2] + t0[:, None] * (b[:, :2] - a[:, :2])
-    pb = a[:, :2] + t1[:, None] * (b[:, :2] - a[:, :2])
-    k = np.ceil(np.hypot(*(pb - pa).T) / (cell / 2)).astype(np.int64) + 1  # samples per stretch
-    owner = np.repeat(np.arange(len(k)), k)
-    first = np.concatenate([[0], np.cumsum(k)[:-1]])
-    frac = (np.arange(len(owner)) - first[owner]) / np.maximum(k[owner] - 1, 1)
-    pts = pa[owner] + frac[:, None] * (pb[owner] - pa[owner])
-    rad, e, near = r[owner], edge[owner], reach[owner]
-    ix = np.floor((pts[:, 0] - grid.x0) / cell).astype(np.int64)
-    iy = np.floor((pts[:, 1] - grid.y0) / cell).astype(np.int64)
-    keys = []
-    width = int(edge.max()) + 1
-    most = int(near.max())
-    for dy in range(-most, most + 1):
-        for dx in range(-most, most + 1):
-            cx, cy = ix + dx, iy + dy
-            gx = np.maximum(np.abs(pts[:, 0] - (grid.x0 + (cx + 0.5) * cell)) - cell / 2, 0.0)
-            gy = np.maximum(np.abs(pts[:, 1] - (grid.y0 + (cy + 0.5) * cell)) - cell / 2, 0.0)
-            hit = (gx * gx + gy * gy <= rad * rad) & (cx >= 0) & (cx < grid.nx) & (cy >= 0) & (cy < grid.ny)
-            hit &= (abs(dx) <= near) & (abs(dy) <= near)
-            keys.append((cy[hit] * grid.nx + cx[hit]) * width + e[hit])
-    flat = np.unique(np.concatenate(keys))
-    return (flat // width).astype(np.int32), (flat % width).astype(np.int32)
 
 
 _INDEXES: dict[tuple, ArmIndex] = {}
