@@ -11,23 +11,26 @@ with the reference float64 arithmetic (`settle_items`) and marked in the bitmap 
 pairs are read.
 
 The programs of one robot, reach grid and device (compiled once; the failure, the seed,
-the edge count and the index height are inputs):
+the edge count and the index height are inputs; sizes from `SIZES`):
   * the capsule ends: (C, 7) float32 -> (C, nc, 3) x 2, C = 32,768 on an accelerator, 1,024
     on a CPU (the planner's checks share it);
-  * a pass: the ends of P = C x LAUNCHES states -> marks in the (G, cells) uint8 bitmap
-    (donated), with I = ITEMS x P candidate items and S = SAMPLES x P samples, each sample
-    testing (2R + 1)^2 cells (R = ceil(largest table radius / cell): 4 for the Panda on 2 cm
-    cells); counts, the capsules low in the block, up to FLAGS borderline items;
-  * marks: the bitmap and MARKS flat indices -> the bitmap;
-  * a window: the bitmap -> the edges of the pairs of ranks [off, off + OUT) in OUT_BLOCKS
+  * a pass: the ends of P = C x launches states (P = 32,768 on a GPU, 8,192 on a CPU) ->
+    marks in the (G x cells + 1,) uint8 bitmap (donated), through items x P candidate item
+    slots and samples x P sample slots, each sample testing (2R + 1)^2 cells (R = ceil(the
+    largest table radius / cell): 4 for the Panda on 2 cm cells); its counts, the capsules
+    low in the block, up to `flags` borderline items;
+  * marks: the bitmap and `marks` flat indices (the host-settled pairs) -> the bitmap;
+  * a window: the bitmap -> the edges of the pairs of ranks [off, off + out) in `out_blocks`
     blocks, and the pairs per cell (cells,);
   * an empty bitmap.
-Work and memory per pass on a GPU (P = 32,768; a case-2 state has about 1.3 low capsules
-and 5 samples, case 1 1.5 and 8): 0.8 M (state, capsule) z-tests, 131 k item slots, 393 k
-sample slots x 81 cells = 32 M float64 cell tests, as many scatter slots (only hits write);
-inputs 20 MB of capsule ends, the 196 MB bitmap of G = 65,536 edges x 3,000 cells.  A
-window reads the bitmap once (6 M words).  A batch (one packing unit, 65,536 sampled edges)
-is one group of G edges on a GPU; on a CPU, groups of 4,096 edges (a 12 MB bitmap).
+G, the edges of one bitmap: 65,536 on a GPU, 4,096 on a CPU for 3,000 cells (a batch of
+more edges is indexed in groups of G, merged on the host).  Work and memory per pass on a
+GPU: 0.8 M (state, capsule) z-tests, 98 k item slots, 328 k sample slots x 81 cells = 27 M
+float64 cell tests and as many scatter slots (only hits write); 20 MB of capsule ends in,
+the 196 MB bitmap.  A window reads the bitmap once (6 M words of 32 edges) and finds each
+of its 4 M pairs by a binary search.  A packing unit of case 2 (65,536 sampled edges, some
+830 k states) takes 26 passes and one window; 1,000,000 edges about 390 passes (10 G cell
+tests) and 16 windows.
 """
 
 from __future__ import annotations
@@ -72,9 +75,12 @@ class IndexSizes:
     lag: int  # passes in flight before the oldest's counts are read
 
 
+# Per state, a block of case 2 holds about 1.3 low capsules and 5.2 samples, of case 1 1.5
+# and 8.1, with no failure 1.6 and 8.2 (blocks of 8,192 states: at most 1.7 and 8.6): one
+# pass takes a block; a denser block takes more.
 SIZES = {
-    "gpu": IndexSizes(1, 4, 12, 1 << 28, 1 << 16, 64, 1 << 12, 1 << 22, 16, 4),
-    "cpu": IndexSizes(8, 3, 12, 1 << 24, 1 << 13, 64, 1 << 12, 1 << 18, 16, 2),
+    "gpu": IndexSizes(1, 3, 10, 1 << 28, 1 << 16, 64, 1 << 12, 1 << 22, 16, 4),
+    "cpu": IndexSizes(8, 3, 10, 1 << 24, 1 << 13, 64, 1 << 12, 1 << 18, 16, 2),
 }
 
 
