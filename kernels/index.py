@@ -3,8 +3,11 @@
 For each state and table-checked capsule, the stretch of the capsule's axis whose surface
 below is at most `height` above the table (its low stretch) is sampled every half cell, and
 every reach cell whose square lies within the capsule's radius of a sample is marked for the
-state's edge in a bitmap of (edge, cell) marks; the pairs come out of the bitmap unique and
-in (cell, edge) order (`extract_pairs`).
+state's edge in a map of (edge, cell) marks; the pairs come out of it unique and in (cell,
+edge) order (`extract_pairs`).  The marks are int32 (0 or 1), one per edge, row and column
+of the grid widened by R columns on each side, so that each sample marks its 2R + 1 rows as
+2R + 1 windows of 2R + 1 columns (a scatter-max of windows: a native atomic on a GPU, a
+tight loop on a CPU).
 
 Exactness.  The index is defined by float64 arithmetic on the float32 capsule ends (the
 arithmetic of `lmjx.edges.index.settle_items`).  These kernels repeat that arithmetic in
@@ -67,17 +70,26 @@ class IndexShape:
     states: int  # states per pass
     items: int  # candidate (state, capsule) items per pass
     samples: int  # samples per pass
-    edges: int  # edges per bitmap (a multiple of 32)
+    edges: int  # edges per map of marks (a multiple of 32)
     flags: int  # borderline items a pass reports
-    trash: bool  # marks that are not written go to the bitmap's last byte (a CPU's fast scatter), else are dropped
 
     @property
     def cells(self) -> int:
         return self.nx * self.ny
 
+    @property
+    def width(self) -> int:
+        """Columns of a row of marks: the grid's and R on each side."""
+        return self.nx + 2 * self.reach
+
+    @property
+    def size(self) -> int:
+        """Marks in a map: edges x rows x columns."""
+        return self.edges * self.ny * self.width
+
 
 class PassOut(NamedTuple):
-    bitmap: jnp.ndarray  # (edges * cells + 1,) uint8 marks, edge-major, then the trash byte
+    marks: jnp.ndarray  # (size,) int32 marks, by edge, row, column (`IndexShape.size`)
     counts: jnp.ndarray  # (4,) int32: candidates, next (rank of the first item not done), borderline, samples
     low_caps: jnp.ndarray  # (nt,) bool: capsules low in some state of the block
     flag_ids: jnp.ndarray  # (flags,) int32 borderline items: state * nt + capsule (-1: none)
@@ -136,29 +148,35 @@ def sample_cells(pt: jnp.ndarray, r: jnp.ndarray, reach: int, nx: int, ny: int, 
 
     Args:
       pt: (n, 2) float64 samples; r: (n,) float64 radii.
-    Returns (cell, hit, borderline): (n, m, m) int32 cell ids iy * nx + ix of the m x m
-    cells around each sample's (m = 2R + 1; rows along y), (n, m, m) whether each is on the
-    grid and within r, (n,) whether a decision of the sample's is within its tolerance."""
+    Returns (cx, cy, hit, borderline): the m = 2R + 1 columns (n, m) and rows (n, m) of the
+    cells tested around each sample, (n, m rows, m columns) whether each is on the grid and
+    within r, and (n,) whether a decision of the sample's is within its tolerance.  The cells
+    are those around the sample's, but the columns of a sample off the grid's sides are
+    those at its nearest side: they hold every cell of the grid within R columns of it (and
+    more, which lie farther than r)."""
     d = np.arange(-reach, reach + 1, dtype=np.int32)
     lo = jnp.stack([p["x0"], p["y0"]])
     u = (pt - lo) / p["cell"]  # (n, 2)
     ixy = jnp.floor(u).astype(jnp.int32)
-    cxy = ixy[:, :, None] + d[None, None]  # (n, 2, m) the columns and rows around the sample
-    g = jnp.maximum(jnp.abs(pt[:, :, None] - (lo[None, :, None] + (cxy + 0.5) * p["cell"])) - p["half"], 0.0)
-    gg = g * g
-    s = gg[:, 1, :, None] + gg[:, 0, None, :]  # (n, m, m): gx * gx + gy * gy
+    cx = jnp.clip(ixy[:, 0], 0, nx - 1)[:, None] + d[None]  # (n, m)
+    cy = ixy[:, 1, None] + d[None]
+
+    def gap(x: jnp.ndarray, c: jnp.ndarray, x0: jnp.ndarray) -> jnp.ndarray:  # distance to the cells' squares
+        return jnp.maximum(jnp.abs(x[:, None] - (x0 + (c + 0.5) * p["cell"])) - p["half"], 0.0)
+
+    gx, gy = gap(pt[:, 0], cx, p["x0"]), gap(pt[:, 1], cy, p["y0"])
+    s = (gy * gy)[:, :, None] + (gx * gx)[:, None, :]  # (n, m, m): gx * gx + gy * gy
     r2 = (r * r)[:, None, None]
-    cx, cy = cxy[:, 0, None, :], cxy[:, 1, :, None]
-    on_grid = ((cx >= 0) & (cx < nx)) & ((cy >= 0) & (cy < ny))
+    on_grid = ((cy >= 0) & (cy < ny))[:, :, None] & ((cx >= 0) & (cx < nx))[:, None, :]
     hit = on_grid & (s <= r2)
     near = on_grid & (jnp.abs(s - r2) <= TOL_S)
     borderline = jnp.any(_near_int(u, TOL_U), axis=1) | jnp.any(near, axis=(1, 2))
-    return cy * nx + cx, hit, borderline
+    return cx, cy, hit, borderline
 
 
 def index_pass(
     shape: IndexShape,
-    bitmap: jnp.ndarray,
+    marks: jnp.ndarray,
     a: jnp.ndarray,
     b: jnp.ndarray,
     ints: jnp.ndarray,
@@ -168,8 +186,7 @@ def index_pass(
     """Mark the cells of one window of a block's items.
 
     Args:
-      bitmap: (edges * cells + 1,) uint8 marks of the edge group, edge-major, then a byte
-        that is never read (`IndexShape.trash`).
+      marks: (size,) int32 marks of the edge group (`IndexShape.size`).
       a, b: (states, nc, 3) float32 capsule ends of the block's states (padding after n).
       ints: (5,) int32: the block's first state s0 (numbered within the batch), its states n,
         the window's first candidate rank, the group's states [lo, hi).
@@ -226,17 +243,20 @@ def index_pass(
     frac = j.astype(jnp.float64) / jnp.maximum(k[owner] - 1, 1).astype(jnp.float64)
     pa_o, pb_o = pa[owner], pb[owner]
     pt = pa_o + frac[:, None] * (pb_o - pa_o)
-    cells, hit, sample_border = sample_cells(pt, r_item[owner], shape.reach, shape.nx, shape.ny, p)
+    cx, cy, hit, sample_border = sample_cells(pt, r_item[owner], shape.reach, shape.nx, shape.ny, p)
     border = item_border | jnp.zeros(shape.items, bool).at[owner].max(sampled & sample_border)
     border = border & done
-    # marks of the items that are not borderline
-    mark = (sampled & ~border[owner])[:, None, None] & hit
-    where = edge[i_state][owner][:, None, None] * shape.cells + cells
-    size = shape.edges * shape.cells
-    if shape.trash:  # every index in bounds: XLA's CPU scatter skips its slower checked path
-        bitmap = bitmap.at[jnp.where(mark, where, size)].set(jnp.uint8(1), mode="promise_in_bounds")
-    else:
-        bitmap = bitmap.at[jnp.where(mark, where, size + 1)].set(jnp.uint8(1), mode="drop")
+    # the marks of the items that are not borderline: each sample's rows, a window of columns
+    # each (rows off the grid, and samples that mark nothing, at a valid place, marking 0)
+    keep = sampled & ~border[owner]
+    e = jnp.clip(edge[i_state][owner], 0, shape.edges - 1)
+    row = jnp.clip(cy, 0, shape.ny - 1)
+    start = (e[:, None] * shape.ny + row) * shape.width + cx[:, :1] + shape.reach  # (n, m) window starts
+    values = (keep[:, None, None] & hit).astype(jnp.int32)
+    dims = lax.ScatterDimensionNumbers(
+        update_window_dims=(2,), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
+    )
+    marks = lax.scatter_max(marks, start[..., None], values, dims, mode="promise_in_bounds")
     # borderline items, for the host
     frank = jnp.cumsum(border, dtype=jnp.int32) - 1
     fslot = jnp.where(border & (frank < shape.flags), frank, shape.flags)
@@ -244,24 +264,27 @@ def index_pass(
     fsafe = jnp.maximum(flag_ids, 0)
     ends = jnp.concatenate([a[:, caps].reshape(-1, 3)[fsafe], b[:, caps].reshape(-1, 3)[fsafe]], axis=1)
     counts = jnp.stack([n_cand, off + n_done, jnp.sum(border, dtype=jnp.int32), total])
-    return PassOut(bitmap, counts, low_caps, flag_ids, ends)
+    return PassOut(marks, counts, low_caps, flag_ids, ends)
 
 
-def mark_cells(bitmap: jnp.ndarray, where: jnp.ndarray) -> jnp.ndarray:
-    """Set marks `where` (flat edge * cells + cell; edges * cells: none) of a bitmap."""
-    return bitmap.at[where].set(jnp.uint8(1), mode="drop")
+def mark_cells(shape: IndexShape, marks: jnp.ndarray, edge: jnp.ndarray, cell: jnp.ndarray) -> jnp.ndarray:
+    """Set the marks of pairs (edge, cell iy * nx + ix) (an edge of -1: none)."""
+    cy, cx = cell // shape.nx, cell % shape.nx
+    where = (edge * shape.ny + cy) * shape.width + cx + shape.reach
+    return marks.at[jnp.where(edge >= 0, where, shape.size)].max(1, mode="drop")
 
 
-def extract_pairs(shape: IndexShape, bitmap: jnp.ndarray, off: jnp.ndarray, capacity: int, blocks: int) -> Window:
+def extract_pairs(shape: IndexShape, marks: jnp.ndarray, off: jnp.ndarray, capacity: int, blocks: int) -> Window:
     """The marked pairs of ranks [off, off + capacity) in (cell, edge) order: their edges in
     `blocks` equal blocks (-1 past the last pair), and the number of edges of every cell.
 
     The marks are packed into words of 32 edges of a cell; each pair is found from its rank
     (the word holding it by a binary search over the words' running counts, then the bit),
-    so the work is one pass over the bitmap and a few steps per pair: no scatter."""
+    so the work is one pass over the marks and a few steps per pair: no scatter."""
     g, c = shape.edges, shape.cells
     w = g // 32
-    bits = bitmap[: g * c].reshape(w, 32, c).astype(jnp.uint32)
+    grid = marks.reshape(g, shape.ny, shape.width)[:, :, shape.reach : shape.reach + shape.nx]
+    bits = (grid > 0).reshape(w, 32, c).astype(jnp.uint32)
     shift = jnp.arange(32, dtype=jnp.uint32)
     words = jnp.sum(bits << shift[None, :, None], axis=1, dtype=jnp.uint32).T.reshape(-1)  # (cells * w,)
     pop = lax.population_count(words).astype(jnp.int32)
@@ -282,5 +305,5 @@ def extract_pairs(shape: IndexShape, bitmap: jnp.ndarray, off: jnp.ndarray, capa
     return Window(counts, tuple(out[k * size : (k + 1) * size] for k in range(blocks)))
 
 
-def empty_bitmap(shape: IndexShape) -> jnp.ndarray:
-    return jnp.zeros(shape.edges * shape.cells + 1, jnp.uint8)
+def empty_marks(shape: IndexShape) -> jnp.ndarray:
+    return jnp.zeros(shape.size, jnp.int32)

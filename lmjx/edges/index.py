@@ -3,34 +3,34 @@ arm (its table-checked capsules, swept over the edge's states) can touch an obje
 
 `arm_index_pairs` computes it on the device JAX uses (`ArmIndex`): the capsule ends by the
 capsule program (`capsule_ends_kernel`, float32, launches of its own size), then passes of
-the index kernel (`kernels.index`, float64) mark (edge, cell) pairs in a bitmap on the
+the index kernel (`kernels.index`, float64) mark (edge, cell) pairs in a map of marks on the
 device, and the pairs come back unique and sorted by (cell, edge).  Nothing on the host grows
 with the states but the joint angles sent up: the borderline items the kernel hands back
 (a decision within its tolerance of its threshold: none in most batches) are settled here
-with the reference float64 arithmetic (`settle_items`) and marked in the bitmap before the
-pairs are read.
+with the reference float64 arithmetic (`index_settle.settle_items`) and marked on the device
+before the pairs are read.
 
 The programs of one robot, reach grid and device (compiled once; the failure, the seed,
 the edge count and the index height are inputs; sizes from `SIZES`):
   * the capsule ends: (C, 7) float32 -> (C, nc, 3) x 2, C = 32,768 on an accelerator, 1,024
     on a CPU (the planner's checks share it);
   * a pass: the ends of P = C x launches states (P = 32,768 on a GPU, 8,192 on a CPU) ->
-    marks in the (G x cells + 1,) uint8 bitmap (donated), through items x P candidate item
+    the (G x ny x (nx + 2R),) int32 marks (donated), through items x P candidate item
     slots and samples x P sample slots, each sample testing (2R + 1)^2 cells (R = ceil(the
     largest table radius / cell): 4 for the Panda on 2 cm cells); its counts, the capsules
     low in the block, up to `flags` borderline items;
-  * marks: the bitmap and `marks` flat indices (the host-settled pairs) -> the bitmap;
-  * a window: the bitmap -> the edges of the pairs of ranks [off, off + out) in `out_blocks`
+  * marks: the marks and `marks` (edge, cell) pairs settled on the host -> the marks;
+  * a window: the marks -> the edges of the pairs of ranks [off, off + out) in `out_blocks`
     blocks, and the pairs per cell (cells,);
-  * an empty bitmap.
-G, the edges of one bitmap: 65,536 on a GPU, 4,096 on a CPU for 3,000 cells (a batch of
-more edges is indexed in groups of G, merged on the host).  Work and memory per pass on a
-GPU: 0.8 M (state, capsule) z-tests, 98 k item slots, 328 k sample slots x 81 cells = 27 M
-float64 cell tests and as many scatter slots (only hits write); 20 MB of capsule ends in,
-the 196 MB bitmap.  A window reads the bitmap once (6 M words of 32 edges) and finds each
-of its 4 M pairs by a binary search.  A packing unit of case 2 (65,536 sampled edges, some
-830 k states) takes 26 passes and one window; 1,000,000 edges about 390 passes (10 G cell
-tests) and 16 windows.
+  * empty marks.
+G, the edges of one map of marks: 32,768 on a GPU, 4,096 on a CPU for the 50 x 60 cells of
+2 cm (456 MB and 57 MB); a batch of more edges is indexed in groups of G, merged on the
+host.  Work and memory per pass on a GPU: 0.8 M (state, capsule) z-tests, 98 k item slots,
+328 k sample slots x 81 cells = 27 M float64 cell tests, 3 M windows of 9 marks written
+(a scatter-max: only hits change a mark); 20 MB of capsule ends in.  A window reads the
+marks once (6 M words of 32 edges) and finds each of its 4 M pairs by a binary search.  A
+packing unit of case 2 (65,536 sampled edges, some 16,000 valid, 830 k states) takes 26
+passes and one window; 1,000,000 edges about 390 passes (10 G cell tests) and 16 windows.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from kernels.index import PARAMS, IndexShape, empty_bitmap, extract_pairs, index_pass, mark_cells, params_words
+from kernels.index import PARAMS, IndexShape, empty_marks, extract_pairs, index_pass, mark_cells, params_words
 from lmjx.edges.index_settle import merge_groups, settle_items
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
@@ -61,13 +61,13 @@ _ENDS_LOCK = threading.Lock()
 
 @dataclass(frozen=True)
 class IndexSizes:
-    """Launches per pass, capacities per state of a pass, bitmap and window sizes."""
+    """Launches per pass, capacities per state of a pass, marks and window sizes."""
 
     launches: int  # capsule launches per pass
     items: int  # candidate item slots per state
     samples: int  # sample slots per state
-    bitmap_bytes: int  # the bitmap's size at most (edges x cells)
-    edges: int  # edges per bitmap at most
+    marks_bytes: int  # a map of marks' size at most (edges x rows x columns, int32)
+    edges: int  # edges per map of marks at most
     flags: int  # borderline items a pass reports (more: its block is settled on the host)
     marks: int  # host-settled marks per call
     out: int  # pairs per window
@@ -79,8 +79,8 @@ class IndexSizes:
 # and 8.1, with no failure 1.6 and 8.2 (blocks of 8,192 states: at most 1.7 and 8.6): one
 # pass takes a block; a denser block takes more.
 SIZES = {
-    "gpu": IndexSizes(1, 3, 10, 1 << 28, 1 << 16, 64, 1 << 12, 1 << 22, 16, 4),
-    "cpu": IndexSizes(8, 3, 10, 1 << 24, 1 << 13, 64, 1 << 12, 1 << 18, 16, 2),
+    "gpu": IndexSizes(1, 3, 10, 1 << 29, 1 << 16, 64, 1 << 12, 1 << 22, 16, 4),
+    "cpu": IndexSizes(8, 3, 10, 1 << 26, 1 << 13, 64, 1 << 12, 1 << 18, 16, 2),
 }
 
 
@@ -163,7 +163,7 @@ def index_totals(since: dict[str, float] | None = None) -> dict[str, float]:
 
 class ArmIndex:
     """The index programs of one robot, reach grid and device (`pairs`).  Thread-safe: each
-    call has its own bitmap."""
+    call has its own map of marks."""
 
     def __init__(self, robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | None = None) -> None:
         arm = robot.arm
@@ -173,9 +173,10 @@ class ArmIndex:
         self.ends = capsule_ends_kernel(robot, device=device)
         caps = tuple(int(c) for c in np.asarray(arm.table_caps))
         radii = tuple(float(r) for r in np.asarray(arm.cap_r, np.float64)[list(caps)])
-        cells = nx * ny
+        reach = neighbourhood(max(radii, default=0.0), cell)
+        per_edge = ny * (nx + 2 * reach)  # marks of an edge
         edges = 32
-        while edges * 2 <= min(self.sizes.edges, self.sizes.bitmap_bytes // cells, INT32_MAX // cells):
+        while edges * 2 <= min(self.sizes.edges, self.sizes.marks_bytes // (4 * per_edge), INT32_MAX // per_edge):
             edges *= 2
         states = self.ends.chunk * self.sizes.launches
         if NEIGHBOURHOOD_STATES % states:
@@ -188,13 +189,12 @@ class ArmIndex:
             radii=radii,
             nx=nx,
             ny=ny,
-            reach=neighbourhood(max(radii, default=0.0), cell),
+            reach=reach,
             states=states,
             items=self.sizes.items * states,
             samples=samples,
             edges=edges,
             flags=self.sizes.flags,
-            trash=self.device.platform == "cpu",
         )
         self._lock = threading.Lock()
         self._programs: dict[str, Any] | None = None
@@ -222,25 +222,27 @@ class ArmIndex:
         def spec(shape, dtype):
             return jax.ShapeDtypeStruct(shape, dtype, sharding=on)
 
-        def one_pass(bitmap, a_parts, b_parts, ints, starts, words):
+        def one_pass(marks, a_parts, b_parts, ints, starts, words):
             a = jnp.concatenate(a_parts) if len(a_parts) > 1 else a_parts[0]
             b = jnp.concatenate(b_parts) if len(b_parts) > 1 else b_parts[0]
-            return index_pass(sh, bitmap, a, b, ints, starts, words)
+            return index_pass(sh, marks, a, b, ints, starts, words)
 
-        bitmap = spec((sh.edges * sh.cells + 1,), jnp.uint8)
+        marks = spec((sh.size,), jnp.int32)
         parts = tuple(spec(ends_shape, jnp.float32) for _ in range(sz.launches))
         words = spec((2 * len(PARAMS),), jnp.uint32)
         # float64 in the trace only: the programs take and give 32-bit values
         with jax.enable_x64(True):
             return {
                 "pass": jax.jit(one_pass, donate_argnums=0)
-                .lower(bitmap, parts, parts, spec((5,), jnp.int32), spec((sh.edges + 1,), jnp.int32), words)
+                .lower(marks, parts, parts, spec((5,), jnp.int32), spec((sh.edges + 1,), jnp.int32), words)
                 .compile(),
-                "mark": jax.jit(mark_cells, donate_argnums=0).lower(bitmap, spec((sz.marks,), jnp.int32)).compile(),
-                "window": jax.jit(lambda bm, off: extract_pairs(sh, bm, off, sz.out, sz.out_blocks))
-                .lower(bitmap, spec((), jnp.int32))
+                "mark": jax.jit(lambda m, e, c: mark_cells(sh, m, e, c), donate_argnums=0)
+                .lower(marks, spec((sz.marks,), jnp.int32), spec((sz.marks,), jnp.int32))
                 .compile(),
-                "empty": jax.jit(lambda: empty_bitmap(sh), out_shardings=on).lower().compile(),
+                "window": jax.jit(lambda m, off: extract_pairs(sh, m, off, sz.out, sz.out_blocks))
+                .lower(marks, spec((), jnp.int32))
+                .compile(),
+                "empty": jax.jit(lambda: empty_marks(sh), out_shardings=on).lower().compile(),
             }
 
     def _put(self, x: np.ndarray) -> jax.Array:
@@ -276,7 +278,7 @@ class ArmIndex:
         starts[1:] = np.cumsum(length)
         words = self._put(params_words(_params(grid, height, self.robot.arm.table_z)))
         run = _Run(self, grid, height, n, starts, words, launch)
-        g = self.shape.edges  # edges per bitmap
+        g = self.shape.edges  # edges per map of marks
         groups = [run.group(g0, min(g0 + g, len(length))) for g0 in range(0, len(length), g)]
         cells, edges = merge_groups(groups, self.shape.cells)
         TOTALS.add(batches=1, states=n, pairs=len(cells), seconds=time.perf_counter() - t0)
@@ -289,7 +291,7 @@ def _params(grid: Grid, height: float, table_z: float) -> dict[str, float]:
 
 
 class _Run:
-    """One batch's index: its groups of edges, one bitmap at a time."""
+    """One batch's index: its groups of edges, one map of marks at a time."""
 
     def __init__(self, index: ArmIndex, grid: Grid, height: float, n: int, starts: np.ndarray, words, launch) -> None:
         self.ix, self.grid, self.height, self.n, self.starts, self.words = index, grid, height, n, starts, words
@@ -323,7 +325,7 @@ class _Run:
         starts = np.full(sh.edges + 1, INT32_MAX, np.int32)
         starts[: g1 - g0 + 1] = self.starts[g0 : g1 + 1]
         starts_d = ix._put(starts)
-        bitmap = self.p["empty"]()
+        marks = self.p["empty"]()
         flagged: list[tuple[int, np.ndarray, np.ndarray]] = []  # (block, item ids, ends)
         host_blocks: set[int] = set()
         inflight: collections.deque = collections.deque()
@@ -331,7 +333,7 @@ class _Run:
 
         def settle(entry) -> None:
             """Read a pass's counts; run the passes its block still needs."""
-            nonlocal bitmap, extra, borderline
+            nonlocal marks, extra, borderline
             block, a, b, ints, out = entry
             while True:
                 counts, self.low_caps[block] = jax.device_get((out.counts, out.low_caps))
@@ -346,16 +348,16 @@ class _Run:
                     return
                 ints = ints.copy()
                 ints[2] = counts[1]
-                out = self.p["pass"](bitmap, a, b, ix._put(ints), starts_d, self.words)
-                bitmap = out.bitmap
+                out = self.p["pass"](marks, a, b, ix._put(ints), starts_d, self.words)
+                marks = out.marks
                 extra += 1
 
         for block in range(lo // sh.states, (hi - 1) // sh.states + 1):
             s0 = block * sh.states
             a, b = self.ends(block)
             ints = np.array([s0, min(sh.states, self.n - s0), 0, lo, hi], np.int32)
-            out = self.p["pass"](bitmap, a, b, ix._put(ints), starts_d, self.words)
-            bitmap = out.bitmap
+            out = self.p["pass"](marks, a, b, ix._put(ints), starts_d, self.words)
+            marks = out.marks
             passes += 1
             inflight.append((block, a, b, ints, out))
             if len(inflight) > ix.sizes.lag:
@@ -370,20 +372,21 @@ class _Run:
             b_h = np.concatenate([np.asarray(x) for x in b])[:, caps].reshape(-1, 3)
             ids = np.arange(len(a_h), dtype=np.int64)
             flagged.append((block, ids, np.concatenate([a_h, b_h], axis=1)))
-        where = self._settled(flagged, g0, lo, hi)
-        for i in range(0, len(where), ix.sizes.marks):
-            part = np.full(ix.sizes.marks, sh.edges * sh.cells, np.int32)
-            part[: len(where[i : i + ix.sizes.marks])] = where[i : i + ix.sizes.marks]
-            bitmap = self.p["mark"](bitmap, ix._put(part))
+        cells, edges = self._settled(flagged, g0, lo, hi)
+        for i in range(0, len(cells), ix.sizes.marks):
+            e, c = np.full(ix.sizes.marks, -1, np.int32), np.zeros(ix.sizes.marks, np.int32)
+            e[: len(edges[i : i + ix.sizes.marks])] = edges[i : i + ix.sizes.marks]
+            c[: len(cells[i : i + ix.sizes.marks])] = cells[i : i + ix.sizes.marks]
+            marks = self.p["mark"](marks, ix._put(e), ix._put(c))
         TOTALS.add(passes=passes + extra, extra_passes=extra, host_blocks=len(host_blocks), borderline=borderline)
-        return self._read(bitmap, g0)
+        return self._read(marks, g0)
 
-    def _settled(self, flagged: list, g0: int, lo: int, hi: int) -> np.ndarray:
-        """The marks (flat edge * cells + cell) of the borderline items, by the reference
-        arithmetic; only items of the group's states [lo, hi)."""
+    def _settled(self, flagged: list, g0: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+        """The (cell, edge) pairs of the borderline items (edges numbered in the group), by
+        the reference arithmetic; only items of the group's states [lo, hi)."""
         sh = self.ix.shape
         if not flagged:
-            return np.zeros(0, np.int32)
+            return np.zeros(0, np.int32), np.zeros(0, np.int32)
         nt = len(sh.caps)
         block = np.concatenate([np.full(len(ids), b, np.int64) for b, ids, _ in flagged])
         ids = np.concatenate([np.asarray(ids, np.int64) for _, ids, _ in flagged])
@@ -406,8 +409,7 @@ class _Run:
         if not np.array_equal(narrow[0], wide[0]) or not np.array_equal(narrow[1], wide[1]):
             reach = np.array([self._block_reach(int(s), int(c)) for s, c in zip(state, cap, strict=True)])
             narrow = settle_items(*args, reach)
-        cells, edges = narrow
-        return (edges * sh.cells + cells).astype(np.int32)
+        return narrow
 
     def _block_reach(self, state: int, cap: int) -> int:
         """The neighbourhood of the states [k, k + NEIGHBOURHOOD_STATES) holding `state`: of
@@ -422,21 +424,21 @@ class _Run:
             if block not in self.low_caps:  # a pass over no group's states: its low capsules only
                 a, b = self.ends(block)
                 ints = np.array([block * sh.states, min(sh.states, self.n - block * sh.states), 0, 0, 0], np.int32)
-                bitmap = self.p["empty"]()
+                marks = self.p["empty"]()
                 starts = self.ix._put(np.full(sh.edges + 1, INT32_MAX, np.int32))
-                out = self.p["pass"](bitmap, a, b, self.ix._put(ints), starts, self.words)
+                out = self.p["pass"](marks, a, b, self.ix._put(ints), starts, self.words)
                 self.low_caps[block] = np.asarray(out.low_caps)
             low |= self.low_caps[block]
         return neighbourhood(float(np.asarray(sh.radii)[low].max()), self.grid.cell)
 
-    def _read(self, bitmap, g0: int) -> tuple[np.ndarray, np.ndarray]:
-        """The group's pairs from its bitmap: edges in (cell, edge) order, pairs per cell."""
+    def _read(self, marks, g0: int) -> tuple[np.ndarray, np.ndarray]:
+        """The group's pairs from its marks: edges in (cell, edge) order, pairs per cell."""
         sz = self.ix.sizes
         size = sz.out // sz.out_blocks
         parts: list[np.ndarray] = []
         off, total, counts = 0, None, None
         while total is None or off < total:
-            window = self.p["window"](bitmap, self.ix._put(np.int32(off)))
+            window = self.p["window"](marks, self.ix._put(np.int32(off)))
             if counts is None:
                 counts = np.asarray(window.counts).astype(np.int64)
                 total = int(counts.sum())
