@@ -15,7 +15,7 @@ import pytest
 from conftest import TINY_ARM, cli
 from reference_index import reference_pairs, reference_pairs_of_ends
 
-from lmjx.edges.index import Grid, arm_index, arm_index_pairs, index_totals
+from lmjx.edges.index import Grid, arm_index, arm_index_pairs, index_devices, index_totals
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
 
@@ -115,6 +115,36 @@ def test_items_on_a_threshold_are_settled_on_the_host(robot):
     assert len(got[0]) > 10
 
 
+@pytest.mark.parametrize("wider", [False, True], ids=["alone", "beside a wider capsule"])
+def test_the_neighbourhood_of_a_settled_item_is_its_blocks(robot, wider):
+    """The cells around a sample that the reference looks at: as many as the widest capsule
+    low among the 65,536 states around needs, found also where that capsule's state lies in
+    no pass of the batch's (here: the batch indexes the first edge only)."""
+    from kernels.index import params_words
+    from lmjx.edges.index import NEIGHBOURHOOD_STATES, _params, _Run, neighbourhood
+
+    cell, nx, ny = SMALL_GRID
+    index = arm_index(robot, nx, ny, cell)
+    index.compile()
+    r = np.asarray(robot.arm.cap_r, np.float64)
+    caps = list(index.shape.caps)
+    small, big = int(np.argmin(r[caps])), int(np.argmax(r[caps]))
+    n = min(3 * index.shape.states, NEIGHBOURHOOD_STATES)  # the wide capsule's state: the last, in another pass
+    a, b = _far(n, len(r))
+    a[0, caps[small]] = b[0, caps[small]] = (0.5, 0.25, 0.0)
+    if wider:
+        a[n - 1, caps[big]] = b[n - 1, caps[big]] = (1.0, 0.5, 0.0)
+    grid = Grid(0.1, -0.6, cell, nx, ny)
+    words = index._put(params_words(_params(grid, HEIGHT, robot.arm.table_z)))
+    starts = np.array([0, 10, n])
+    run = _Run(index, grid, HEIGHT, n, starts, words, lambda rows: (index._put(a[rows]), index._put(b[rows])))
+    run.group(0, 1)
+    assert set(run.low_caps) == {0}
+    want = neighbourhood(r[caps[big if wider else small]], cell)
+    assert run._block_reach(5, small) == want
+    assert want == (2 if wider else 1)
+
+
 def test_a_block_of_many_borderline_items_is_settled_whole(robot):
     """More borderline items in a block than a pass reports: the block is settled on the host."""
     cell, nx, ny = SMALL_GRID
@@ -149,12 +179,14 @@ def test_blocks_of_more_items_than_a_pass_holds(robot):
 
 @pytest.mark.skipif(jax.default_backend() == "cpu", reason="the device's own arithmetic: on a GPU")
 def test_a_larger_map_on_the_gpu(robot, tmp_path):
-    """On the GPU: a 20,000-edge case-2 map's index, as built and recomputed, is the
-    reference's, pair for pair."""
+    """On the GPU: a 20,000-edge case-2 map's index, as built and recomputed on each of the
+    devices the index runs on, is the reference's, pair for pair."""
     path = tmp_path / "case2.h5"
     cli("build-map", "--failure", "case2", "--edges", "20000", "--seed", "0", "--out", path).ok()
     reach, q, length, edges = _map(path, robot)
     want = reference_pairs(reach, robot, q, length, HEIGHT)
-    _assert_same(arm_index_pairs(reach, robot, q, length, HEIGHT), want)
+    grid = Grid.of(reach)
+    for device in index_devices():
+        _assert_same(arm_index(robot, grid.nx, grid.ny, grid.cell, device).pairs(grid, q, length, HEIGHT), want)
     cells = np.repeat(np.arange(len(edges.index_offset) - 1), np.diff(edges.index_offset))
     assert np.array_equal(cells, want[0]) and np.array_equal(edges.index_edges, want[1])

@@ -132,9 +132,10 @@ def neighbourhood(radius: float, cell: float) -> int:
 class IndexTotals:
     """What the index did in this process (summed over threads): batches, states, passes
     (those beyond a block's first: `extra_passes`), borderline items settled on the host,
-    blocks settled whole on the host, pairs, seconds."""
+    blocks settled whole on the host, pairs, seconds, and seconds compiling its programs."""
 
-    KEYS = ("batches", "states", "passes", "extra_passes", "borderline", "host_blocks", "pairs", "seconds")
+    KEYS = ("batches", "states", "passes", "extra_passes", "borderline", "host_blocks", "pairs", "seconds",
+            "compile_seconds")  # fmt: skip
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -158,7 +159,7 @@ def index_totals(since: dict[str, float] | None = None) -> dict[str, float]:
     now = TOTALS.snapshot()
     if since is not None:
         now = {k: v - since.get(k, 0.0) for k, v in now.items()}
-    return {k: round(v, 4) if k == "seconds" else int(v) for k, v in now.items()}
+    return {k: round(v, 4) if k.endswith("seconds") else int(v) for k, v in now.items()}
 
 
 class ArmIndex:
@@ -210,6 +211,7 @@ class ArmIndex:
                 t0 = time.perf_counter()
                 self._programs = self._build()
                 self.compile_seconds = time.perf_counter() - t0
+                TOTALS.add(compile_seconds=self.compile_seconds)
 
     def _build(self) -> dict[str, Any]:
         import jax.numpy as jnp

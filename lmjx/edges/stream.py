@@ -297,6 +297,7 @@ def _build_map(
     # The edges' programs and the spatial index's compile in a thread of their own while the
     # reach map is computed (they do not depend on it; the index's on the grid's size only).
     xs, ys = reach_cfg.grid()
+    index_before = index_totals()
     warmed = _in_background(
         lambda: [*(ks.warm() for ks in kernel_sets), warm_index(robot, len(xs), len(ys), reach_cfg.cell)]
     )
@@ -312,7 +313,6 @@ def _build_map(
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
-    index_before = index_totals()
     writer: MapWriter | None = None
     main = {"wait": 0.0, "hand_over": 0.0}  # the main thread: waiting for chunks, handing them over
     jobs = {"draw": 0.0, "ik": 0.0, "rollout": 0.0}  # the chunk threads' time, summed
@@ -373,7 +373,8 @@ def _build_map(
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
-        # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the host
+        # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the
+        # host, its programs' compilation (none where this process or the cache has them)
         summary["index"] = index_totals(since=index_before)
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
