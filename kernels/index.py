@@ -10,7 +10,7 @@ of the grid widened by R columns on each side, so that each sample marks its 2R 
 tight loop on a CPU).
 
 Exactness.  The index is defined by float64 arithmetic on the float32 capsule ends (the
-arithmetic of `lmjx.edges.index.settle_items`).  These kernels repeat that arithmetic in
+arithmetic of `lmjx.edges.index_settle.settle_items`).  These kernels repeat that arithmetic in
 float64, op for op; what a device may still do differently (fuse a*b+c into one rounding,
 compute a square root's hypotenuse otherwise) moves a value by a few units in the last place
 (about 1e-16 relative).  Every discrete decision of the rasterization is therefore taken with

@@ -1,6 +1,6 @@
 """The whole-arm spatial index on the device (`lmjx.edges.index`, `kernels.index`) against
 the numpy reference (`reference_index`), pair for pair: on the states of the shared maps of
-two failures, on edges split over several bitmaps, on blocks that need more than one pass,
+two failures, on edges split over several maps of marks, on blocks that need more than one pass,
 and on items built to sit exactly on a decision's threshold (settled on the host).
 
 The crafted items use the shared case-2 map's grid size (20 x 24 cells of 5 cm), whose
@@ -52,8 +52,8 @@ def test_pairs_equal_the_reference_on_a_maps_states(robot, request, which):
     assert np.array_equal(cells, want[0]) and np.array_equal(edges.index_edges, want[1])
 
 
-def test_edges_over_several_bitmaps(robot, small_map):
-    """More edges than one bitmap holds: the groups' pairs merged in (cell, edge) order."""
+def test_edges_over_several_maps_of_marks(robot, small_map):
+    """More edges than one map of marks holds: the groups' pairs merged in (cell, edge) order."""
     reach, q, length, _ = _map(small_map, robot)
     index = arm_index(robot, *reversed(reach.labels.shape), reach.config.cell)
     n = index.shape.edges + 300
@@ -64,7 +64,7 @@ def test_edges_over_several_bitmaps(robot, small_map):
     got = arm_index_pairs(reach, robot, q3, length3, HEIGHT)
     want = reference_pairs(reach, robot, q3, length3, HEIGHT)
     _assert_same(got, want)
-    assert want[1].max() >= index.shape.edges  # pairs in the second bitmap
+    assert want[1].max() >= index.shape.edges  # pairs in the second map of marks
 
 
 def _far(n: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
