@@ -45,6 +45,7 @@ from lmjx.edges.bundle import BundleConfig, reasons
 from lmjx.edges.chunk import EdgeChunk, chunk_ranges, pack_chunk
 from lmjx.edges.sampling import split_rolled
 from lmjx.errors import LmjxError
+from lmjx.mapfile.digest import store_digest
 from lmjx.mapfile.schema import PER_EDGE
 from lmjx.mapfile.write import EdgeWriter, store_push_counts, write_head, write_index
 from lmjx.model.robot import Robot
@@ -121,8 +122,9 @@ class MapWriter:
         self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
         self.t_wait = 0.0
-        # packers' seconds (summed), the final wait, moving the map to `out`, removing the partial folder
-        self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0, "replace": 0.0, "remove_partial": 0.0}
+        # packers' seconds (summed), the final wait, the content digest (`mapfile.digest`), moving the map
+        # to `out`, removing the partial folder (and "push": the push counts' seconds)
+        self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0, "digest": 0.0, "replace": 0.0, "remove_partial": 0.0}
         job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads(), self.tmp)
         # the map's head (root attributes, /robot, /reach) written here: the writing process
         # adds /edges, and needs neither the robot's model nor JAX's runtime
@@ -243,6 +245,9 @@ class MapWriter:
         push = store_push_counts(self.tmp, self.robot)
         t1 = time.perf_counter()
         self.parts["push"] = push["push_seconds"]
+        store_digest(self.tmp)  # the map read back once, so that evaluations need not
+        self.parts["digest"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
         os.replace(self.tmp, out)  # (a map already at `out` is freed here)
         t2 = time.perf_counter()
         shutil.rmtree(self.folder, ignore_errors=True)

@@ -15,6 +15,7 @@ import numpy as np
 from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
+from lmjx.mapfile.digest import store_digest
 from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.schema import (
     DEFLATE_LEVEL,
@@ -124,8 +125,9 @@ def write_map(
 ) -> dict:
     """Write a map file: the Reach-Ability map and, when given, the edge bundle with the
     push counts of the robot's built-in scenarios (`mapfile.pushcounts`, computed from the
-    edges as written).  Atomic (temp file, then rename).  Returns storage figures (bytes
-    per stored edge state) and the push counts' time."""
+    edges as written), and the map's content digest (`mapfile.digest`).  Atomic (temp file,
+    then rename).  Returns storage figures (bytes per stored edge state) and the push
+    counts' time."""
     robot = as_robot(robot) if robot is not None else _robot_of(reach)
     sizes: dict = {}
     with atomic_path(path) as tmp:
@@ -139,6 +141,7 @@ def write_map(
                 sizes = w.close(bundle_attrs(bundle))
         if bundle is not None:
             sizes |= store_push_counts(tmp, robot)
+        store_digest(tmp)
         if bundle is not None and bundle.n_states:
             sizes["file_bytes_per_state"] = Path(tmp).stat().st_size / bundle.n_states
     return sizes
