@@ -22,6 +22,14 @@ if TYPE_CHECKING:
     from lmjx.sim.scenarios import Layout
 
 CONTROL_DT = 0.02  # the edges' control period [s]: an action's joint targets are this far apart
+# The planning limit's default (`PlannerConfig.max_sim_steps`), in simulated control steps: what
+# the most expensive default configuration may simulate, Greedy with 1,024 candidates and
+# rescoring's 8 x 7 redrawn starts (1,080 rollouts a decision), over a budget of 30 decisions,
+# with actions averaging up to 1,500 control points (30 s: a transit through the roadmap can be
+# several times the ~160 of an action from the park pose): 30 x 1,080 x 1,500 = 48.6 million.
+# A bound on runaway planning (Lazy over every edge, Greedy over a fraction of thousands), not
+# a setting the default ASMs meet, on a GPU (1,024 candidates) or a CPU (32).
+MAX_SIM_STEPS = 50_000_000
 
 
 @dataclass
@@ -113,7 +121,14 @@ class PlannerConfig:
 
     asm: str = _lever("greedy", "the action selection mechanism (--asm, --asms)", choices=ASMS)
     max_actions: int | None = _lever(None, "the action budget per task (--max-actions); none: the task set's", least=1)
-    max_planning_s: float = _lever(600.0, "[s] a trial stops once its planning time passes this", above=0.0)
+    max_sim_steps: int = _lever(
+        MAX_SIM_STEPS,
+        "the planning limit: a trial stops, a failure unless its target is in the goal, before its next decision "
+        "once its planner has simulated this many control steps (20 ms of an action's motion each, counted per "
+        "candidate rollout and start: the same count on every host and simulator); planning time (wall clock) is "
+        "measured but stops nothing",
+        least=1,
+    )
     greedy_candidates: int = _lever(
         32,
         "greedy: candidate actions simulated per decision (--candidates; the commands' default: 1024 with the GPU "
@@ -258,5 +273,5 @@ class PlannerConfig:
 
 
 # the fields `settings()` lists only where they differ from their defaults (the others it always lists)
-UNLISTED = ("max_planning_s", "min_progress", "target_margin", "goal_margin", "futile_radius")
+UNLISTED = ("max_sim_steps", "min_progress", "target_margin", "goal_margin", "futile_radius")
 _DEFAULTS = {f.name: f.default for f in fields(PlannerConfig)}

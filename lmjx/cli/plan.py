@@ -153,7 +153,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Push the target cube of a scenario into its goal region with the edges of a map, choosing "
         "each action by an action selection mechanism and executing it in a simulated 'real' world whose physics "
         "differ from the planner's.  Planning time is wall clock less compiling on first use (printed apart); "
-        "robot time is the simulated time the arm spends executing the actions.",
+        "robot time is the simulated time the arm spends executing the actions.  The planning limit counts "
+        "simulated control steps, not seconds: the trial stops before a decision once its planner has simulated "
+        "max_sim_steps of them (--set max_sim_steps=N; the same count on every host), a failure unless the "
+        "target is in the goal.",
         epilog=LEVERS_EPILOG,
     )
     p.add_argument("--map", required=True, metavar="FILE", help="a map file from lmjx build-map")

@@ -33,7 +33,10 @@ PRESET_MEANING = (
     "(futile_filter, path_score, lazy_fallback and lazy_cap false, greedy_fraction 0.25, push_weight 0, "
     "rescore_top 0), applied before the other keys"
 )
-NOT_LEVERS = {"asm": "choose the ASM with --asm (lmjx evaluate: --asms)"}
+NOT_LEVERS = {
+    "asm": "choose the ASM with --asm (lmjx evaluate: --asms)",
+    "max_planning_s": "the planning limit counts simulated control steps, not seconds: set max_sim_steps",
+}
 TRUE, FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
 
 

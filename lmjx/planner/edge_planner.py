@@ -17,8 +17,9 @@ where nothing is in the way).  An edge that was executed and did not bring the t
 is not offered again while the target stays where it was (the simulator was wrong about it
 once; trying it again would waste the action budget).
 Execute it in the "real" world, observe, repeat until the target is in the goal region or
-the budget (actions, planning time) is spent.  Actions whose transit would hit the table or
-the arm itself are skipped.  Everything random comes from the trial's seed.
+the budget (actions; the planning limit, counted in simulated control steps) is spent.
+Actions whose transit would hit the table or the arm itself are skipped.  Everything random
+comes from the trial's seed.
 """
 
 from __future__ import annotations
@@ -295,16 +296,18 @@ class Planner:
         self.trail = obs.robot_q[None].copy()
         steps: list[StepRecord] = []
         planning = 0.0
+        simulated = 0  # control steps simulated: the planning limit's count (host-independent)
         reason = "budget"
         for _ in range(cfg.max_actions or self.sc.budget):
             if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"
                 break
-            if planning > cfg.max_planning_s:
-                reason = "planning time"
+            if simulated >= cfg.max_sim_steps:
+                reason = "planning limit"
                 break
             action, rec = yield from self._timed_decision(obs, rng)
             planning += rec.planning_s
+            simulated += rec.sim_steps
             if action is None:
                 reason = "no feasible transit"
                 if rec.candidates == 0:
@@ -344,6 +347,7 @@ class Planner:
             actions=sum(1 for s in steps if s.edge >= 0),
             planning_s=planning,
             compile_s=sum(s.compile_s for s in steps),
+            sim_steps=simulated,
             execution_s=obs.time,
             final_distance=float(goal_distance(self.sc, truth[0, :2])),
             steps=steps,
@@ -354,9 +358,10 @@ class Planner:
     def _timed_decision(self, obs: Observation, rng: np.random.Generator):
         """`decide`, with its planning time: own computation plus the simulations' charged
         seconds, each less the compilation it included (JAX's, counted apart in `compile_s`;
-        the simulations' answers leave theirs out already)."""
+        the simulations' answers leave theirs out already); and the control steps its
+        simulations rolled out (`sim_steps`)."""
         steps = self.decide(obs, rng)
-        own, charged, compiled = 0.0, 0.0, 0.0
+        own, charged, compiled, simulated = 0.0, 0.0, 0.0, 0
         answer = None
         while True:
             c0, t0 = jax_compile_seconds(), time.perf_counter()
@@ -369,10 +374,12 @@ class Planner:
                 rec.compile_s = compiled + c
                 rec.planning_s = max(0.0, own + charged)
                 rec.simulation_s = charged
+                rec.sim_steps = simulated
                 return action, rec
             c = jax_compile_seconds() - c0
             own += time.perf_counter() - t0 - c
             compiled += c
+            simulated += req.control_steps
             answer = yield req
             charged += answer.seconds
             compiled += answer.compile_s

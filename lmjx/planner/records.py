@@ -28,6 +28,7 @@ class StepRecord:
     edge_first: int = 0  # the edge's first state executed (`Action.edge_first`: > 0 only with late_start)
     compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.runtime.compiletime`)
     simulation_s: float = 0.0  # of planning_s, the seconds its simulations were charged (not in the records)
+    sim_steps: int = 0  # control steps its simulations rolled out (`Simulate.control_steps`: what the limit counts)
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
     no_action: dict | None = None
@@ -68,14 +69,15 @@ class StepRecord:
             "edge_states": self.edge_states,
             **({"edge_first": self.edge_first} if self.edge_first else {}),
             **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
+            **({"sim_steps": self.sim_steps} if self.sim_steps else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
             **({"stuck": self.stuck} if self.stuck is not None else {}),
             **({"rescored": self.rescored} if self.rescored is not None else {}),
         }
 
 
-ENDS = ("goal", "budget", "planning time", "no edge over the target", "no feasible transit", "no edge moves the target",
-        "target off the table")  # fmt: skip
+ENDS = ("goal", "budget", "planning limit", "no edge over the target", "no feasible transit",
+        "no edge moves the target", "target off the table")  # fmt: skip
 
 
 @dataclass
@@ -88,6 +90,7 @@ class TrialResult:
     steps: list[StepRecord] = field(default_factory=list)
     reason: str = ""  # how the trial ended: "goal" whenever the target ends in the goal (success)
     compile_s: float = 0.0  # seconds its decisions spent compiling (not in planning_s; `lmjx.runtime.compiletime`)
+    sim_steps: int = 0  # control steps its planner simulated (the planning limit counts them: max_sim_steps)
     stopped: str = ""  # what stopped the planner (one of ENDS): it stops once the observed target
     # is `goal_margin` inside the goal, so a target that ended in the goal but nearer its edge
     # shows here what came next (e.g. "no feasible transit")
@@ -105,6 +108,7 @@ class TrialResult:
             "actions": self.actions,
             "planning_s": round(self.planning_s, 3),
             "compile_s": round(self.compile_s, 3),
+            "sim_steps": self.sim_steps,
             "execution_s": round(self.execution_s, 3),
             "final_distance_m": round(self.final_distance, 4),
             "end": self.reason,

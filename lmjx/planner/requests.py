@@ -31,6 +31,12 @@ class Simulate:
     def rollouts(self) -> int:
         return len(self.actions) * (len(self.objects) if self.objects.ndim == 3 else 1)
 
+    @property
+    def control_steps(self) -> int:
+        """The control steps the request simulates (what the planning limit counts,
+        `PlannerConfig.max_sim_steps`): each action's control points, once per start."""
+        return sum(len(a.q) for a in self.actions) * (len(self.objects) if self.objects.ndim == 3 else 1)
+
 
 @dataclass
 class Simulated:
