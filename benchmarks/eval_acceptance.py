@@ -3,18 +3,23 @@ results (results.json files).
 
     python benchmarks/eval_acceptance.py --paper docs/evaluation/paper_gpu/results.json \
         --hard docs/evaluation/hard_gpu/results.json [--paper docs/evaluation/paper_cpu/results.json ...] \
-        [--json OUT.json] [--report DIR]
+        [--replicate BASE] [--json OUT.json] [--report DIR]
 
-Prints, per run, the success and mean actions per successful trial of every cell, and then
-each acceptance item with the figures it rests on: the paper set's case-1 ordering (Greedy
-100 %, Random lowest and >= 40 % in two scenarios, Lazy between, Greedy the fewest actions, a
-one-action Random success), case 2's Greedy >= 70.6 %, the hard set's Greedy against the
-figures before the executable actions, and over every executed action of every run: transits
-that touched a fixed obstacle, transits that touched a movable object, and Random's actions
-that moved the target 1 cm or more.  --report DIR rewrites report.md and the plots of a
+Prints, per run, the success (with its Wilson 95 % interval) and mean actions per successful
+trial of every cell, and then each acceptance item with the figures it rests on: the paper
+set's case-1 ordering (Greedy 100 %, Random lowest and >= 40 % in two scenarios, Lazy between,
+Greedy the fewest actions, a one-action Random success), case 2's Greedy >= 70.6 %, the hard
+set's Greedy against the figures before the executable actions, and over every executed action
+of every run: transits that touched a fixed obstacle, transits that touched a movable object,
+and Random's actions that moved the target 1 cm or more.  --replicate BASE adds the checks of
+a registered replicate (docs/evaluation/REPLICATE.md): every cell complete with the trial seeds
+of that base, every trial of one run's conditions (commit, maps, planner, simulator), no trial
+dropped or run twice, one kind of device.  --report DIR rewrites report.md and the plots of a
 results file in DIR (for a run that was stopped before its last trial); --merge DEST DIR...
 joins the results of runs split in parts (`lmjx evaluate --part K/N`, one cell a process) into
-DEST and rewrites its report."""
+DEST and rewrites its report: parts of other conditions (commit, maps, planner, ...) and a
+trial found twice with different records are refused in one line unless --allow-mixed (the
+report then says so)."""
 
 from __future__ import annotations
 
@@ -24,6 +29,11 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+from lmjx.errors import LmjxError
+from lmjx.evaluation.results import Results, merge, write_results
+from lmjx.evaluation.results import read_results as load
+from lmjx.evaluation.stats import rate_text
+
 HARD_BEFORE = {"case1": {1: 1.0, 2: 1.0, 3: 1.0}, "case2": {1: 1.0, 2: 14 / 15, 3: 1.0}}
 PAPER_CASE2_GREEDY = 0.706
 TRIALS = 15  # a cell is complete with this many trials; the checks use complete cells only
@@ -31,7 +41,7 @@ ASMS = ("random", "lazy", "greedy")
 
 
 def cells(records: list[dict]) -> dict[tuple, dict]:
-    """(failure, scenario, asm) -> trials, success rate, mean actions of the successes."""
+    """(failure, scenario, asm) -> trials, successes, success rate, mean actions of the successes."""
     by = defaultdict(list)
     for r in records:
         by[(r["failure"], r["scenario"], r["asm"])].append(r)
@@ -40,6 +50,7 @@ def cells(records: list[dict]) -> dict[tuple, dict]:
         ok = [r for r in rs if r["success"]]
         out[k] = {
             "trials": len(rs),
+            "successes": len(ok),
             "success": len(ok) / len(rs),
             "actions": sum(r["actions"] for r in ok) / len(ok) if ok else None,
             "one_action_successes": sum(1 for r in ok if r["actions"] == 1),
@@ -137,12 +148,58 @@ def hard_checks(c: dict) -> list[tuple[str, bool, str]]:
     return out
 
 
-def read_results(path: Path, flag: str) -> list[dict]:
-    """The trials of a results.json, or a one-line exit naming `flag` where it cannot be read."""
+def replicate_checks(runs: dict[str, Results], base: int) -> list[tuple[str, bool, str]]:
+    """The registered replicate's own checks (docs/evaluation/REPLICATE.md), over its results
+    files (`runs`: path -> results): each task set complete (2 failures x 3 scenarios x 3 ASMs
+    x 15 trials, the trial seeds of `base`), every trial of one run's conditions, no trial
+    dropped or run twice, no run pooled with --allow-mixed, one kind of device."""
+    from lmjx.evaluation.evaluate import trial_seed
+    from lmjx.evaluation.provenance import differences, differences_text
+
+    out = []
+    want = {(f, s, a, trial_seed(base, s, t)) for f in ("case1", "case2") for s in (1, 2, 3) for a in ASMS
+            for t in range(TRIALS)}  # fmt: skip
+    for path, res in runs.items():
+        have = [(r["failure"], r["scenario"], r["asm"], r["seed"]) for r in res.trials]
+        missing, extra = len(want - set(have)), len(set(have) - want)
+        complete = not missing and not extra and len(have) == len(want)
+        out.append((f"{path}: complete, {len(want)} trials of seed base {base}", complete,
+                    f"{len(have)} trials, {missing} missing, {extra} not of the design"))  # fmt: skip
+    used = [(p, run) for p, res in runs.items() for run in res.runs_used()]
+    recorded = [run for _, run in used if not run.get("unrecorded")]
+    diffs = []
+    for p, run in used:
+        if run.get("unrecorded"):
+            diffs.append(f"{p}: trials without provenance")
+            continue
+        d = [x for x in differences(recorded[0], run) if x[0] != "task set"]  # (the sets differ in their tasks)
+        if d:
+            diffs.append(f"{p} run {run['id']}: {differences_text(d, 'first', 'its')}")
+    out.append(("every trial of one run's conditions (commit, maps, planner, simulator, trials, seed base)",
+                bool(used) and not diffs, "; ".join(diffs) or f"{len(used)} runs, the same conditions"))  # fmt: skip
+    dropped = []
+    for p, res in runs.items():
+        ran = sum(int(run.get("trials_run", 0)) for run in res.runs if not run.get("unrecorded"))
+        if ran != len(res.trials) or res.replaced:
+            dropped.append(f"{p}: {ran} trials run, {len(res.trials)} held, {len(res.replaced)} run twice")
+    out.append(("no trial dropped or run twice (the trials each run ran = the trials held)", not dropped,
+                "; ".join(dropped) or "each run's trials all held"))  # fmt: skip
+    mixed = [f"{p} run {run['id']}" for p, run in used if run.get("allow_mixed")]
+    out.append(("no run pooled with --allow-mixed", not mixed, ", ".join(mixed) or "none"))
+    devices = sorted({run["simulator"]["device"] for run in recorded if run["simulator"]["name"] != "none"})
+    out.append(("one kind of device", len(devices) == 1 and len(recorded) == len(used),
+                "; ".join(devices) or "none recorded"))  # fmt: skip
+    return out
+
+
+def read_results(path: Path, flag: str) -> Results:
+    """The results of a results.json, or a one-line exit naming `flag` where it cannot be read."""
+    if not path.exists():
+        sys.exit(f"eval_acceptance: {flag}: {path} does not exist")
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        sys.exit(f"eval_acceptance: {flag}: cannot read {path}: {e}")
+        return load(path)
+    except LmjxError as e:
+        sys.exit(f"eval_acceptance: {flag}: {e}")
 
 
 def main() -> None:
@@ -157,63 +214,76 @@ def main() -> None:
         metavar="DIR",
         help="write DEST/results.json (the first DIR) from the results.json of the others (runs of one task set "
         "split by cell or part, e.g. lmjx evaluate --part K/N), then rewrite DEST's report and stop; DEST's own "
-        "trials are kept unless a later DIR holds the same trial (a later DIR's record wins)",
+        "trials are kept; parts of other conditions and a trial found twice with different records are refused "
+        "unless --allow-mixed",
     )
     ap.add_argument(
+        "--allow-mixed",
+        action="store_true",
+        help="--merge: pool parts of other conditions, and keep the later record of a trial found twice (the "
+        "report says so)",
+    )
+    ap.add_argument("--replicate", type=int, metavar="BASE", help="add the checks of a registered replicate of "
+                    "seed base BASE (docs/evaluation/REPLICATE.md)")  # fmt: skip
+    ap.add_argument(
         "--simulator",
-        help="the simulator's description for a rewritten report (default: this machine's; give it when "
-        "rewriting a GPU run's report elsewhere, e.g. 'gpu: MuJoCo Warp on NVIDIA H100 80GB HBM3, whole scene')",
+        help="the simulator's description for a rewritten report of trials without provenance (default: this "
+        "machine's; e.g. 'gpu: MuJoCo Warp on NVIDIA H100 80GB HBM3, whole scene')",
     )
     args = ap.parse_args()
     if args.merge:
         dest, *srcs = (Path(d) for d in args.merge)
-        merged: dict = {}
         # DEST's own trials first, so that merging new runs into it never drops what it held
         own = (dest / "results.json").exists() and dest.resolve() not in {d.resolve() for d in srcs}
         kept = [dest] if own else []
+        parts = []
         for d in kept + srcs:
             if not (d / "results.json").exists():  # a run stopped before its first trial ended
                 print(f"{d}: no trials")
                 continue
-            for r in read_results(d / "results.json", "--merge"):
-                merged[(r["failure"], r["scenario"], r["asm"], r["seed"])] = r
-        if not merged:
+            parts.append((str(d), read_results(d / "results.json", "--merge")))
+        try:
+            merged = merge(parts, args.allow_mixed)
+        except LmjxError as e:
+            sys.exit(f"eval_acceptance: --merge: {e}")
+        if not merged.trials:
             sys.exit(f"eval_acceptance: --merge: no trials in {', '.join(str(d) for d in kept + srcs) or 'no folder'}")
-        recs = sorted(
-            merged.values(),
-            key=lambda r: (r["failure"], r["scenario"], ["random", "lazy", "greedy"].index(r["asm"]), r["seed"]),
-        )
+        merged.trials.sort(key=lambda r: (r["failure"], r["scenario"], ASMS.index(r["asm"]), r["seed"]))
         dest.mkdir(parents=True, exist_ok=True)
-        from lmjx.runtime.fileio import write_text_atomic
-
-        write_text_atomic(dest / "results.json", json.dumps(recs, indent=1) + "\n")
-        print(f"{dest}/results.json: {len(recs)} trials from {len(srcs)} runs" + (" and its own" if kept else ""))
+        write_results(dest / "results.json", merged)
+        print(
+            f"{dest}/results.json: {len(merged.trials)} trials from {len(srcs)} runs" + (" and its own" if kept else "")
+        )
         args.report = str(dest)
     if args.report:
-        from lmjx.evaluation.evaluate import EvalConfig, plots, report_markdown, simulator_description
+        from lmjx.evaluation.evaluate import EvalConfig, plots, report_markdown
+        from lmjx.evaluation.provenance import simulator_description
         from lmjx.model.robot import load_robot
         from lmjx.runtime.fileio import write_text_atomic
         from lmjx.types import PlannerConfig
 
         d = Path(args.report)
-        recs = read_results(d / "results.json", "--report")
+        res = read_results(d / "results.json", "--report")
+        recs = res.trials
         if not recs:
             sys.exit(f"eval_acceptance: --report: {d / 'results.json'} holds no trials")
         sim = next((r["sim"] for r in recs if r["sim"] != "none"), "cpu")
         cand = next((r["candidates"] for r in recs if r["candidates"]), 32)
         config = EvalConfig(tasks=recs[0]["tasks"], planner=PlannerConfig(greedy_candidates=cand))
         robot = load_robot(recs[0].get("robot", "panda"))
-        write_text_atomic(
-            d / "report.md", report_markdown(recs, config, args.simulator or simulator_description(sim), robot)
-        )
+        recorded = all(not run.get("unrecorded") for run in res.runs_used())
+        simulator = args.simulator or ("" if recorded else simulator_description(sim))
+        write_text_atomic(d / "report.md", report_markdown(res, config, simulator, robot))
         plots(recs, d)
         print(f"{d}: {len(recs)} trials, report.md and plots rewritten")
         return
     result: dict = {"runs": {}, "checks": []}
     total = defaultdict(int)
+    given: dict[str, Results] = {}
     for kind, paths in (("paper", args.paper), ("hard", args.hard)):
         for p in paths:
-            recs = read_results(Path(p), f"--{kind}")
+            given[p] = read_results(Path(p), f"--{kind}")
+            recs = given[p].trials
             c = cells(recs)
             fig = action_figures(recs)
             for k, v in fig.items():
@@ -222,7 +292,7 @@ def main() -> None:
             print(f"\n{p} ({kind}, {len(recs)} trials)")
             for (f, s, a), v in c.items():
                 acts = "-" if v["actions"] is None else f"{v['actions']:.1f}"
-                print(f"  {f} s{s} {a:6s} {v['trials']:3d} trials {100 * v['success']:5.1f} %  actions {acts}")
+                print(f"  {f} s{s} {a:6s} {rate_text(v['successes'], v['trials']):34s} actions {acts}")
             checks = paper_checks(c) if kind == "paper" else hard_checks(c)
             if kind == "paper" and len({k[1] for k in c}) * 18 * 15 // 3 != len(recs):
                 checks = [(n, ok, why + " (partial run: complete scenarios only)") for n, ok, why in checks]
@@ -249,6 +319,8 @@ def main() -> None:
             f" ({100 * t.get('random_moved_1cm', 0) / max(t.get('random_actions', 0), 1):.1f} %)",
         ),
     ]
+    if args.replicate is not None:
+        overall += replicate_checks(given, args.replicate)
     print("\nacross every run given:")
     for name, ok, why in overall:
         print(f"  [{'met' if ok else 'NOT met'}] {name}: {why}")

@@ -43,6 +43,7 @@ import numpy as np
 
 from lmjx.errors import LmjxError
 from lmjx.evaluation.evaluate import load_maps
+from lmjx.evaluation.results import trials_of
 from lmjx.model.robot import load_robot
 from lmjx.planner.edge_planner import Planner
 from lmjx.planner.records import StepRecord
@@ -150,7 +151,7 @@ def combine(replayed: list[dict], results: list[Path]) -> dict:
     counts its actions replayed the same by the replay's rule and the others as recorded; a
     trial it did not replay (run later, or run again since) counts as recorded."""
     old = {tuple(t["key"]): t for t in replayed}
-    recs = {key(r): r for p in results for r in json.loads(p.read_text())}
+    recs = {key(r): r for p in results for r in trials_of(p)}
     c: dict[str, int] = defaultdict(int)
     for k, r in recs.items():
         t = old.get(k)
@@ -188,7 +189,7 @@ def main() -> None:
     if args.combine:
         try:
             sums = combine(json.loads(args.combine.read_text())["trials"], args.results)
-        except (OSError, ValueError, KeyError, TypeError) as e:  # a missing or foreign file: one line
+        except (OSError, ValueError, KeyError, TypeError, LmjxError) as e:  # a missing or foreign file: one line
             sys.exit(f"recount_contacts: --combine: {type(e).__name__}: {e}")
         write_text_atomic(args.out, json.dumps(sums, indent=1) + "\n")
         print(json.dumps(sums))
@@ -205,7 +206,10 @@ def main() -> None:
             k = n = 0
         if not 1 <= k <= n:
             sys.exit(f"recount_contacts: --part '{args.part}': give K/N with 1 <= K <= N")
-        recs = {key(r): r for p in args.results for r in json.loads(p.read_text())}
+        try:
+            recs = {key(r): r for p in args.results for r in trials_of(p)}
+        except LmjxError as e:  # not a results file: one line
+            sys.exit(f"recount_contacts: {e}")
         if not recs:
             sys.exit("recount_contacts: no trials in " + ", ".join(map(str, args.results)))
         todo = [recs[x] for x in sorted(recs)][k - 1 :: n]

@@ -24,3 +24,7 @@ class OutputPathError(LmjxError):
 
 class MapFileError(LmjxError):
     """A map file is missing, truncated, of another schema or of another robot."""
+
+
+class MixedRunsError(LmjxError):
+    """Trials of runs whose conditions differ (commit, maps, planner, ...) would be pooled."""

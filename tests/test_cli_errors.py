@@ -17,6 +17,7 @@ import pytest
 from conftest import benchmark_module, cli
 
 import lmjx
+from lmjx.evaluation.results import trials_of
 
 
 def lmjx_process(*args: object, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
@@ -150,10 +151,10 @@ def test_evaluation_in_parts_and_replayed(plan_map, tmp_path):
             "--max-actions", "2", "--seed", "4", "--tasks", "hard", "--maps", plan_map.parent, "--out")  # fmt: skip
     cli(*args, tmp_path / "whole").ok()
     cli(*args, tmp_path / "parts", "--part", "2/2").ok()
-    assert [r["seed"] for r in json.loads((tmp_path / "parts" / "results.json").read_text())] == [401001]
+    assert [r["seed"] for r in trials_of(tmp_path / "parts" / "results.json")] == [401001]
     cli(*args, tmp_path / "parts", "--part", "1/2").ok()
-    split = json.loads((tmp_path / "parts" / "results.json").read_text())
-    whole = json.loads((tmp_path / "whole" / "results.json").read_text())
+    split = trials_of(tmp_path / "parts" / "results.json")
+    whole = trials_of(tmp_path / "whole" / "results.json")
     edges = [[s["edge"] for s in r["steps"]] for r in whole]
     assert [r["seed"] for r in split] == [401000, 401001] and all(edges), edges  # every trial acted
     assert [[s["edge"] for s in r["steps"]] for r in split] == edges

@@ -11,8 +11,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from conftest import benchmark_module, cli
+from conftest import cli
 
+from lmjx.evaluation.results import trials_of
 from lmjx.evaluation.trial import run_trial, setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.failure import parse_failure
@@ -270,7 +271,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random,greedy", "--trials", "2",
             "--max-actions", "2", "--candidates", "4", "--maps", maps, "--out", ev)  # fmt: skip
     cli(*args).ok()
-    records = json.loads((ev / "results.json").read_text())
+    records = trials_of(ev / "results.json")
     assert len(records) == 4
     assert set(records[0]) >= {"failure", "scenario", "asm", "seed", "success", "actions", "planning_s", "execution_s",
                                "end", "asm_settings", "steps"}  # fmt: skip
@@ -287,9 +288,9 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     assert "How the trials ended" in (ev / "report.md").read_text()
     assert (ev / "report.md").exists() and (ev / "bubble.png").exists() and (ev / "actions.png").exists()
     r = cli(*args)  # resumes: nothing left to do
-    assert r.returncode == 0 and len(json.loads((ev / "results.json").read_text())) == 4
+    assert r.returncode == 0 and len(trials_of(ev / "results.json")) == 4
     # one task set per folder
-    cli(*args, "--asms", "random", "--tasks", "hard").one_line_error("task set 'paper', not 'hard'")
+    cli(*args, "--asms", "random", "--tasks", "hard").one_line_error("task set (there paper ")
     # the same trials face the same layouts whatever the ASM
     assert sorted({x["seed"] for x in records if x["asm"] == "random"}) == sorted(
         {x["seed"] for x in records if x["asm"] == "greedy"}
@@ -1383,99 +1384,6 @@ def test_a_report_says_the_settings_its_trials_ran_with():
     assert len(two) == 2 and two[0].startswith("ASM settings (greedy)") and "push_weight 0.0" in two[1]
 
 
-def test_calibration_scores_goal_free_runs_as_trials_end(robot, plan_map):
-    """benchmarks/calibrate_tasks.py runs each calibration trial of Random once, without a
-    goal, and scores every candidate task on the recorded track (`outcome`).  That is sound
-    only if the trial run on the task itself (the paper's settings, the same seeds) ends the
-    same way: the same success after the same number of actions.  The goals are placed from
-    the tracks: on a trial's observed target after its first action (the planner stops
-    there), the same point 5 mm inside a goal's edge (less than the planner's 1 cm margin: it
-    goes on), and far away with a shorter budget (it ends at the budget)."""
-    from dataclasses import replace
-
-    from lmjx.planner.edge_planner import Planner
-    from lmjx.sim.scenarios import PaperTask, paper_variant
-
-    ct = benchmark_module("calibrate_tasks")
-    m = load_map(plan_map, robot=robot)
-    tracks = ct.run_trials(robot, m, 1, 3, 4)
-    hard = scenario(1, tasks="hard")
-    start = np.array([hard.target.x, hard.target.y])
-    half = 0.03
-    moved = [tr for tr in tracks if tr["actions"] >= 2]
-    assert moved, [(tr["end"], tr["actions"]) for tr in tracks]
-    pick = max(moved, key=lambda tr: np.abs(np.subtract(tr["track"][1][0], tr["track"][0][0])).max())
-    first = np.array(pick["track"][1][0])  # its observed target after the first action
-    assert np.abs(first - np.array(pick["track"][0][0])).max() > half + 0.01, "the first push moved too little"
-
-    def task_at(centre: np.ndarray, half: float, budget: int):
-        d = centre - start
-        angle = float(np.degrees(np.arctan2(d[1], d[0])))
-        return paper_variant(hard, PaperTask(float(np.hypot(*d)), half, angle), budget)
-
-    tasks = [
-        task_at(first, half, 4),
-        task_at(first - np.array([half - 0.005, 0.0]), half, 4),
-        task_at(start + np.array([0.0, -0.25]), 0.05, 1),
-    ]
-    cfg = PlannerConfig(asm="random").paper()
-    transits = TransitPlanner(robot, m.failure)
-    got = {}
-    for i, task in enumerate(tasks):
-        for tr in tracks:
-            planner = Planner(robot, m.failure, m.reach, m.edges, task, None, replace(cfg, max_actions=task.budget),
-                              transits)  # fmt: skip
-            res = planner.run(SimulatedRealWorld(robot, tr["seed"]), sample_layout(task, tr["seed"]), tr["seed"] * 7)
-            got[i, tr["seed"]] = res.actions
-            want = ct.outcome(tr["track"], task, task.budget)
-            assert (res.success, res.actions) == want, (i, tr["seed"], res.reason, want)
-    # the cases the goals were placed for: a stop on the goal, a pass 5 mm inside it, the budget
-    assert got[0, pick["seed"]] == 1 and got[1, pick["seed"]] >= 2 and got[2, pick["seed"]] == 1, got
-
-
-def test_one_action_rate_executes_what_a_trial_executes(robot, plan_map):
-    """benchmarks/one_action_rate.py executes each first action from the start in a fresh
-    "real" world of the trial's seed.  That stands for Random's first action only if a trial
-    that picks the same edge (the calibration's Random trial, `calibrate_tasks.Recording`)
-    leaves the target where the script does: the same observed and true pose, to the bit.  The
-    script's success test then agrees with the trial run on a task (a stop in the goal after
-    one action) for goals placed on that end and with it 5 mm inside a goal's edge."""
-    from dataclasses import replace
-
-    from lmjx.evaluation.evaluate import trial_seed
-    from lmjx.planner.edge_planner import Planner
-    from lmjx.sim.scenarios import PaperTask, paper_variant
-
-    ct, oa = benchmark_module("calibrate_tasks"), benchmark_module("one_action_rate")
-    m = load_map(plan_map, robot=robot)
-    sc = replace(scenario(1, tasks="paper"), goal_center=(3.0, -3.0), budget=1)
-    seed = trial_seed(oa.CAL_BASE, 1, 0)
-    world = ct.Recording(robot, seed)
-    planner = Planner(robot, m.failure, m.reach, m.edges, sc, None, PlannerConfig(asm="random", max_actions=1).paper(),
-                      TransitPlanner(robot, m.failure))  # fmt: skip
-    res = planner.run(world, sample_layout(sc, seed), seed * 7)
-    assert res.actions == 1, res.reason
-    edge = res.steps[0].edge
-    _, ends = oa.first_actions(robot, m, 1, seed, 1, order=np.array([edge]))
-    assert len(ends) == 1 and ends[0]["edge"] == edge
-    assert ends[0]["observed"] == world.track[1][0] and ends[0]["true"] == world.track[1][1]
-    hard = scenario(1, tasks="hard")
-    start = np.array([hard.target.x, hard.target.y])
-    end = np.array(ends[0]["observed"])
-    assert np.hypot(*(end - start)) > 0.01, "the first push moved too little"
-    seen = set()
-    for centre in (end, end - np.array([0.025, 0.0])):  # on the end: a stop; 5 mm inside the edge: no stop
-        d = centre - start
-        task = paper_variant(hard, PaperTask(float(np.hypot(*d)), 0.03, float(np.degrees(np.arctan2(d[1], d[0])))), 2)
-        cfg = PlannerConfig(asm="random", max_actions=2).paper()
-        trial = Planner(robot, m.failure, m.reach, m.edges, task, None, cfg, TransitPlanner(robot, m.failure))
-        trial = trial.run(SimulatedRealWorld(robot, seed), sample_layout(task, seed), seed * 7)
-        assert trial.steps[0].edge == edge  # (Random's first pick does not depend on the goal)
-        assert oa.one_action(task, ends[0]) == (trial.success and trial.actions == 1)
-        seen.add(oa.one_action(task, ends[0]))
-    assert seen == {True, False}
-
-
 def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     """`--servo robot`: the planner's simulator tracks joint targets with the robot's own servo
     gains and torque limits.  Against the "real" world's physics with its per-trial draws set
@@ -1504,3 +1412,56 @@ def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     assert "servo" not in PlannerConfig(servo="playback").settings() and PlannerConfig().servo == "robot"
     with pytest.raises(Exception, match="unknown servo model 'stiff'"):
         PlannerConfig(servo="stiff").validate()
+
+
+class _CountingSimulator:
+    """A simulator passing every request on, counting the control points of the actions it is
+    given (each action once per start): an account of the planner's simulations kept apart from
+    the planner's own."""
+
+    def __init__(self, sim) -> None:
+        self.sim, self.name, self.prefers_batches, self.steps_run = sim, sim.name, sim.prefers_batches, 0
+        self.counted = 0
+
+    @property
+    def description(self) -> str:
+        return self.sim.description
+
+    def simulate(self, robot_q, objects, actions):
+        self.counted += sum(len(a.q) for a in actions)
+        return self.sim.simulate(robot_q, objects, actions)
+
+    def simulate_many(self, requests):
+        return [self.simulate(*r) for r in requests]
+
+
+def test_the_planning_limit_counts_simulated_control_steps(robot, plan_map):
+    """The planning limit (`max_sim_steps`) counts the control steps the planner simulated,
+    not seconds: the trial's count is the simulator's own account, and a trial stops before
+    the decision that would follow the limit's being reached (the second here: a limit of the
+    first decision's steps), ending "planning limit", a failure; one more step lets it go on.
+    Wall-clock planning time is recorded and stops nothing."""
+    from dataclasses import replace
+
+    from lmjx.evaluation.trial import make_simulator
+
+    m = load_map(plan_map, robot=robot)
+    task = resolve_task(1, robot, "hard")
+    sim = make_simulator(robot, task, "cpu")
+    # (no push weight: its counts are not needed; rescoring on: its redrawn starts count too)
+    cfg = PlannerConfig(asm="greedy", greedy_candidates=4, rescore_top=2, rescore_draws=2, max_actions=2,
+                        push_weight=0.0)  # fmt: skip
+
+    def trial(limit: int):
+        counting = _CountingSimulator(sim)
+        res = run_trial(setup_trial(robot, m, task, replace(cfg, max_sim_steps=limit), 401000, counting))
+        return res, counting.counted
+
+    free, counted = trial(10**9)
+    first = free.steps[0].sim_steps
+    assert free.stopped == "budget" and free.actions == 2 and free.planning_s > 0.0, free
+    assert free.sim_steps == counted == sum(s.sim_steps for s in free.steps) > first > 0
+    stopped, counted = trial(first)
+    assert (stopped.stopped, stopped.reason, stopped.success, stopped.actions) == ("planning limit",) * 2 + (False, 1)
+    assert stopped.sim_steps == counted == first and stopped.summary()["end"] == "planning limit"
+    assert "planning limit" in ENDS and trial(first + 1)[0].sim_steps == free.sim_steps

@@ -106,7 +106,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     return_large_buffers()
     parser = build_parser()
     args = parser.parse_args(argv)
+    import shlex
     import signal
+
+    # the command as given, for what records it (`lmjx evaluate`'s provenance)
+    args.command_line = shlex.join(["lmjx", *(sys.argv[1:] if argv is None else map(str, argv))])
 
     from lmjx.errors import LmjxError
 

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable
 
 from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
-from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, _resolve_sim, moved_notes, planner_levers
+from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, moved_notes, planner_levers
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -17,8 +17,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="trials over failures x scenarios x ASMs, with a report",
         description="Run the paper's evaluation: --trials tasks for each failure, scenario and action selection "
         "mechanism (the same layouts and 'real' worlds for every ASM and failure).  Writes results.json after "
-        "every trial (a rerun continues where it stopped), then report.md, bubble.png and actions.png.  A task's "
-        "time: planning (wall clock, less compiling) plus robot time (simulated execution).",
+        "every trial, each trial with its provenance (lmjx's commit, the maps' digests, the simulator, device "
+        "and host, the planner's configuration); a rerun continues where it stopped, and refuses an --out "
+        "holding trials of other conditions (commit, maps, planner, task set, simulator, trials, seed).  Then "
+        "report.md (the provenance, success with 95 % intervals), bubble.png and actions.png.  A trial stops at "
+        "the planning limit: max_sim_steps control steps simulated by its planner (--set max_sim_steps=N), the "
+        "same count on every host; it is then a failure unless its target is in the goal.  A task's time: "
+        "planning (wall clock, less compiling; measured, it stops nothing) plus robot time (simulated "
+        "execution).",
         epilog=LEVERS_EPILOG,
     )
     p.add_argument("--failures", metavar="LIST", help="comma separated (default: the robot's presets)")
@@ -39,6 +45,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     _add_planner_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument(
+        "--allow-mixed",
+        action="store_true",
+        help="add to an --out whose trials ran under other conditions (another commit, other maps, ...): "
+        "report.md then says which runs its trials come from",
+    )
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)
     p.set_defaults(run=cmd_evaluate)
@@ -73,12 +85,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         EvalConfig,
         evaluate,
         load_maps,
+        open_run,
         plots,
         report_markdown,
-        simulator_description,
         summarize,
     )
     from lmjx.evaluation.levers import planner_config
+    from lmjx.evaluation.provenance import simulator_description
+    from lmjx.evaluation.stats import rate_text
+    from lmjx.evaluation.trial import resolve_simulator
     from lmjx.runtime.fileio import check_writable, write_text_atomic
 
     robot = _load_robot(args)
@@ -101,10 +116,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))  # before --out is made
     check_writable(out / "results.json", "results")
     simulates = bool(set(config.asms) - {"random"})
-    sim_name, why = _resolve_sim(args) if simulates else ("cpu", "random does not simulate")
+    sim_name, why = resolve_simulator(args.sim) if simulates else ("cpu", "random does not simulate")
     config = replace(config, planner=planner_config("greedy", sim_name, levers), backend=sim_name)
+    opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed)  # a refusal: one line
+    if simulates:
+        print(f"lmjx evaluate: simulator {sim_name} ({why})", file=sys.stderr)
     try:
-        records = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr))
+        results = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr), opened=opened)
     except KeyboardInterrupt:
         _leave_interrupted(
             f"lmjx evaluate: interrupted; the trials finished are kept in {out}/results.json: rerun the same "
@@ -112,7 +130,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         )
     for note in moved_notes(args):  # after the run: a refusal before it stays one line
         print(note, file=sys.stderr)
-    write_text_atomic(out / "report.md", report_markdown(records, config, simulator_description(sim_name), robot))
+    records = results.trials
+    write_text_atomic(out / "report.md", report_markdown(results, config, simulator_description(sim_name), robot))
     plots(records, out)
     rows = summarize(records)
     lines = [
@@ -121,7 +140,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         "  task time: planning (wall clock) + robot time (simulated execution), mean over the trials",
     ]
     lines += [
-        f"  {r['failure']} scenario {r['scenario']} {r['asm']:>6}: {r['success_rate'] * 100:5.1f} % of {r['trials']}, "
+        f"  {r['failure']} scenario {r['scenario']} {r['asm']:>6}: {rate_text(r['successes'], r['trials'])}, "
         f"task {r['task_s_mean']:.1f} s"
         for r in rows
     ]

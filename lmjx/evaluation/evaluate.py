@@ -1,10 +1,12 @@
 """`lmjx evaluate`: trials over failures x scenarios x ASMs, the paper's Section V.
 
-Results are written after every trial (`results.json`, atomically), so an interrupted
-evaluation loses nothing and a rerun with the same arguments continues where it stopped.
-At the end: `report.md` (a table beside the paper's figures), `bubble.png` (success and task
-time per cell, as the paper's bubble chart) and `actions.png` (distributions of actions per
-successful task).
+Results are written after every trial (`results.json`, atomically, with the provenance of
+every trial: `lmjx.evaluation.results`), so an interrupted evaluation loses nothing and a
+rerun with the same arguments continues where it stopped; a rerun under other conditions
+(another commit, other maps, another planner configuration, ...) is refused unless allowed.
+At the end: `report.md` (the provenance, then a table with 95 % intervals beside the paper's
+figures), `bubble.png` (success and task time per cell, as the paper's bubble chart) and
+`actions.png` (distributions of actions per successful task).
 """
 
 from __future__ import annotations
@@ -19,13 +21,16 @@ import numpy as np
 
 from lmjx.errors import ConfigError
 from lmjx.evaluation.lockstep import run_lockstep
+from lmjx.evaluation.provenance import new_run, trial_provenance
+from lmjx.evaluation.results import Results, check_conditions, provenance_lines, read_results, write_results
+from lmjx.evaluation.stats import rate_text, wilson
 from lmjx.evaluation.trial import make_simulator, setup_trial
 from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.robot import Robot
 from lmjx.planner.records import TrialResult
 from lmjx.planner.transit import TransitPlanner
 from lmjx.runtime.cores import usable_cores
-from lmjx.runtime.fileio import atomic_path, write_text_atomic
+from lmjx.runtime.fileio import atomic_path
 from lmjx.runtime.progress import Progress
 from lmjx.sim.scenarios import TASK_SETS, resolve_task, scenario
 from lmjx.types import ASMS, PlannerConfig
@@ -82,16 +87,22 @@ def _num(x: float | None) -> str:
     return "–" if x is None else f"{x:.1f}"
 
 
-def _load_results(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise ConfigError(f"{path} exists but cannot be read ({e}); move it away to start afresh") from None
-    if not isinstance(data, list):
-        raise ConfigError(f"{path} is not an lmjx results list; move it away to start afresh")
-    return data
+def open_run(
+    robot: Robot,
+    maps: dict[str, MapFile],
+    config: EvalConfig,
+    out: Path,
+    command: str | None = None,
+    allow_mixed: bool = False,
+) -> tuple[Results, dict]:
+    """The results already in `out` and this run's entry (`provenance.new_run`); refused
+    (`MixedRunsError`, one line) where the trials held ran under other conditions, unless
+    `allow_mixed`.  Nothing is written."""
+    config.validate()
+    results = read_results(out / "results.json")
+    run = new_run(robot, maps, config, command, allow_mixed)
+    check_conditions(results, run, allow_mixed, str(out / "results.json"))
+    return results, run
 
 
 def evaluate(
@@ -101,28 +112,24 @@ def evaluate(
     out: Path,
     progress: bool = True,
     say: Callable[[str], None] | None = None,
-) -> list[dict]:
-    """Run every missing trial; return all records (also in out/results.json); `say` is told
-    in one line when trials of an earlier run are kept (a resumed run).
+    command: str | None = None,
+    allow_mixed: bool = False,
+    opened: tuple[Results, dict] | None = None,
+) -> Results:
+    """Run every missing trial; return the results (also in out/results.json): every trial's
+    record and the runs that made them.  `say` is told in one line when trials of an earlier
+    run are kept (a resumed run); `command`: the command line, for the provenance.  Trials
+    held from a run under other conditions are refused before anything runs (`open_run`;
+    `opened`: what it returned, where the caller called it) unless `allow_mixed`.
 
     The trials of a scenario run together (`lmjx.evaluation.lockstep`): on a GPU their candidates are
     simulated in shared batches, and executions run on all cores; on the CPU as many trials
     as cores are in flight at once.  Each trial makes the decisions it would make alone.  A
     record is written as soon as its trial ends."""
-    config.validate()
-    out.mkdir(parents=True, exist_ok=True)
+    results, run = opened or open_run(robot, maps, config, out, command, allow_mixed)
     results_path = out / "results.json"
-    records = _load_results(results_path)
-    others = sorted({str(r.get("robot", "panda")) for r in records} - {robot.key})
-    if others:
-        raise ConfigError(
-            f"{results_path} holds trials of the robot '{others[0]}', not '{robot.key}'; use another --out"
-        )
-    tasks = sorted({str(r.get("tasks", "hard")) for r in records} - {config.tasks})
-    if tasks:
-        raise ConfigError(
-            f"{results_path} holds trials of the task set '{tasks[0]}', not '{config.tasks}'; use another --out"
-        )
+    out.mkdir(parents=True, exist_ok=True)
+    records = results.trials
     done = {(r["failure"], r["scenario"], r["asm"], r["seed"]) for r in records}
     todo = [
         (f, s, a, trial_seed(config.seed, s, t))
@@ -170,6 +177,7 @@ def evaluate(
                     "planning_s": round(res.planning_s, 3),
                     "compile_s": round(res.compile_s, 3),  # not in planning_s (lmjx.runtime.compiletime)
                     "execution_s": round(res.execution_s, 3),
+                    "sim_steps": res.sim_steps,  # the planning limit's count (provenance: planner.max_sim_steps)
                     "final_distance_m": round(res.final_distance, 4),
                     "end": res.reason,
                     "stopped": res.stopped,
@@ -179,21 +187,27 @@ def evaluate(
                     "steps": res.action_records(),
                     # the decision that found no action, where one ended the trial: why (`StepRecord.no_action`)
                     **({"no_action": res.steps[-1].no_action} if res.steps and res.steps[-1].no_action else {}),
+                    "run": run["id"],  # (its entry in the file's `runs`)
+                    "provenance": trial_provenance(run, f, a),
                 }
             )
+            if run not in results.runs:
+                results.runs.append(run)
+            run["trials_run"] += 1
             records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))
-            write_text_atomic(results_path, json.dumps(records, indent=1) + "\n")
+            write_results(results_path, results)
             bar.update(1)
 
         # a GPU answers every trial's candidates in one batch; C MuJoCo gains nothing from
         # more trials in flight than cores, and a stopped run keeps the trials that ended
         run_lockstep(trials, sim, finished, threads=threads, window=None if batched else threads)
     bar.close()
-    return records
+    return results
 
 
 def summarize(records: list[dict]) -> list[dict]:
-    """Per (failure, scenario, asm): trials, success rate, mean actions/times."""
+    """Per (failure, scenario, asm): trials, successes, success rate with its Wilson 95 %
+    interval (`lmjx.evaluation.stats`), mean actions/times."""
     out = []
     for (f, s, a), rs in _cells(records):
         ok = [r for r in rs if r["success"]]
@@ -203,7 +217,9 @@ def summarize(records: list[dict]) -> list[dict]:
                 "scenario": s,
                 "asm": a,
                 "trials": len(rs),
+                "successes": len(ok),
                 "success_rate": len(ok) / len(rs),
+                "success_ci95": [round(x, 4) for x in wilson(len(ok), len(rs))],
                 "actions_mean_success": float(np.mean([r["actions"] for r in ok])) if ok else None,
                 "planning_s_mean": float(np.mean([r["planning_s"] for r in rs])),
                 "execution_s_mean": float(np.mean([r["execution_s"] for r in rs])),
@@ -211,16 +227,6 @@ def summarize(records: list[dict]) -> list[dict]:
             }
         )
     return out
-
-
-def simulator_description(name: str) -> str:
-    """Where the planner's simulations ran, in words, for reports."""
-    if name == "gpu":
-        import warp as wp
-
-        return f"gpu: MuJoCo Warp on {wp.get_device('cuda:0').name}, whole scene"
-    what = "whole scene" if name == "cpu" else "the target and its 3 nearest objects"
-    return f"{name}: C MuJoCo mujoco.rollout on {usable_cores()} cores, {what}"
 
 
 def _settings_lines(records: list[dict], config: EvalConfig) -> list[str]:
@@ -241,28 +247,49 @@ def _settings_lines(records: list[dict], config: EvalConfig) -> list[str]:
     return [f"ASM settings ({', '.join(sorted(asms))}): {line(st)}." for st, asms in by.values()]
 
 
-def report_markdown(records: list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None) -> str:
+def report_markdown(
+    results: Results | list[dict], config: EvalConfig, simulator: str, robot: Robot | None = None
+) -> str:
+    """report.md: the provenance of the trials (`results.provenance_lines`), then per cell the
+    success with its Wilson 95 % interval, actions and times, the ASM settings, how the trials
+    ended.  The header's counts are the records' (trials per cell as the table holds them);
+    the simulator, planner and task set are the runs' as recorded, `config` and `simulator`
+    where the trials carry no provenance."""
+    if isinstance(results, list):
+        results = Results([], results)
+    records = results.trials
     rows = summarize(records)
-    planned = config.trials * len(config.failures) * len(config.scenarios) * len(config.asms)
+    runs = [r for r in results.runs_used() if not r.get("unrecorded")]
+    counts = sorted({r["trials"] for r in rows})
+    per_cell = "0" if not counts else str(counts[0]) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}"
+    planned = _planned(runs, config)
+    tasks = ", ".join(sorted({str(r.get("tasks", config.tasks)) for r in records})) or config.tasks
+    sims = sorted({r["simulator"]["description"] for r in runs if r["simulator"]["name"] != "none"})
+    planner = runs[0]["planner"] if runs else {k: v for k, v in config.planner.__dict__.items() if k != "asm"}
+    budget = planner["max_actions"] or _budget(config)
     lines = [
         "# lmjx evaluation" + (f": {robot.profile.description or robot.key}" if robot is not None else ""),
         "",
-        f"{len(records)} trials ({config.trials} per cell"
+        *provenance_lines(results),
+        "## Results",
+        "",
+        f"{_trials(len(records))} ({per_cell} per cell"
         + (f"; a partial run: {planned - len(records)} of {planned} not run yet" if len(records) < planned else "")
-        + f"), task set '{config.tasks}', simulator {simulator}; "
-        f"planner: greedy {config.planner.greedy_candidates} candidates, lazy up to {config.planner.lazy_tries} "
-        f"tries, at most {_budget(config)} actions per task.",
+        + f"), task set '{tasks}', simulator {'; '.join(sims) or simulator}; "
+        f"planner: greedy {planner['greedy_candidates']} candidates, lazy up to {planner['lazy_tries']} "
+        f"tries, at most {budget} actions per task, a planning limit of "
+        f"{planner.get('max_sim_steps', config.planner.max_sim_steps):,} simulated control steps per trial.",
         "",
         "The trials of a scenario run together; on a GPU their candidates share batches, and a batch's seconds "
-        "are charged to each trial in proportion to its candidates (its planning time).",
+        "are charged to each trial in proportion to its candidates (its planning time).  Success: successes of "
+        "trials, the rate and its Wilson 95 % interval.",
         "",
-        "| failure | scenario | ASM | trials | success | actions (mean, successes) | planning s | execution s "
-        "| task s |",
-        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| failure | scenario | ASM | success | actions (mean, successes) | planning s | execution s | task s |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         lines.append(
-            f"| {r['failure']} | {r['scenario']} | {r['asm']} | {r['trials']} | {r['success_rate'] * 100:.1f} % | "
+            f"| {r['failure']} | {r['scenario']} | {r['asm']} | {rate_text(r['successes'], r['trials'])} | "
             f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
             f"{r['task_s_mean']:.1f} |"
         )
@@ -289,8 +316,25 @@ def report_markdown(records: list[dict], config: EvalConfig, simulator: str, rob
     return "\n".join(lines)
 
 
+def _trials(n: int) -> str:
+    return f"{n} trial" + ("" if n == 1 else "s")
+
+
 def _budget(config: EvalConfig) -> int:
     return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
+
+
+def _planned(runs: list[dict], config: EvalConfig) -> int:
+    """The trials the runs set out to make (their cells x trials per cell; `config`'s where
+    none is recorded)."""
+    cells, per = set(), 0
+    for r in runs:
+        c = r.get("cells", {})
+        cells |= {(f, s, a) for f in c.get("failures", []) for s in c.get("scenarios", []) for a in c.get("asms", [])}
+        per = max(per, int(r["trials_per_cell"]))
+    if not cells:
+        return config.trials * len(config.failures) * len(config.scenarios) * len(config.asms)
+    return per * len(cells)
 
 
 def _end_label(r: dict) -> str:
