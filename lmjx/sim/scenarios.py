@@ -6,13 +6,14 @@ region.
   1. the target and 3 movable obstacles that crowd it;
   2. a fixed tunnel partitioning the table: the target must pass through it;
   3. the target and 11 movable obstacles (many object-object interactions).
-Two task sets share these layouts (`TASK_SETS`):
+Two task sets share these layouts (`TASK_SETS`), both frozen (tests/test_frozen_tasks.py pins
+their geometry and layouts):
   * "hard": the goals as first built here, 22-28 cm from the target, 12 cm square, a
     budget of 30 actions: tasks where choosing actions by simulation matters;
   * "paper": the goal regions, distances and budget chosen by calibration to reproduce the
     paper's reported outcomes (its Random ASM completes a large share of the tasks, some in
     one action), with Random only, on calibration seeds the evaluation never uses
-    (`PAPER_TASKS`; the procedure and its runs: docs/EVALUATION.md, benchmarks/calibrate_tasks.py).
+    (`PAPER_TASKS`; the rule: docs/EVALUATION.md, "Deviations from the paper").
     In scenarios 1 and 3 the goal's direction from the target is calibrated too (the hard
     tasks' lies against the way pushes from this arm tend to move the target);
     in scenario 2 the task is reversed: the target starts where the hard task's goal is, on
@@ -188,7 +189,7 @@ class PaperTask:
 
 
 # Chosen by calibration (Random only, calibration seeds; docs/EVALUATION.md, "Deviations from the
-# paper"; benchmarks/calibrate_tasks.py); never tuned on the evaluation's seeds.
+# paper"); never tuned on the evaluation's seeds; frozen (tests/test_frozen_tasks.py).
 PAPER_TASKS = {1: PaperTask(0.15, 0.08, 90.0), 2: PaperTask(0.17, 0.08, 90.0), 3: PaperTask(0.13, 0.08, 0.0)}
 PAPER_BUDGET = 30
 
