@@ -57,7 +57,7 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
         t0 = time.perf_counter()
         f(jnp.ones((64, 64))).block_until_ready()
         first_call["s"] = time.perf_counter() - t0
-        yield Simulate(np.zeros(7), np.zeros((1, 7)), [None])
+        yield Simulate(np.zeros(7), np.zeros((1, 7)), [SimpleNamespace(q=np.zeros((3, 7)))])  # (3 control points)
         return None, StepRecord(-1, 0, 0, None, 0.0, 0.0, 0.0)
 
     sim = CompilingSim(batches)
@@ -81,6 +81,7 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
     assert rec.planning_s + rec.compile_s == pytest.approx(wall, abs=0.05)
     assert rec.planning_s < wall - SIM_COMPILE
     assert rec.summary()["compile_s"] == round(rec.compile_s, 3)
+    assert rec.sim_steps == 3  # what the planning limit counts: the request's control points
 
 
 def test_simulator_without_compilation() -> None:
