@@ -15,16 +15,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "evaluate",
         help="trials over failures x scenarios x ASMs, with a report",
-        description="Run the paper's evaluation: --trials tasks for each failure, scenario and action selection "
-        "mechanism (the same layouts and 'real' worlds for every ASM and failure).  Writes results.json after "
-        "every trial, each trial with its provenance (lmjx's commit, the maps' digests, the simulator, device "
-        "and host, the planner's configuration); a rerun continues where it stopped, and refuses an --out "
-        "holding trials of other conditions (commit, maps, planner, task set, simulator, trials, seed).  Then "
-        "report.md (the provenance, success with 95 % intervals), bubble.png and actions.png.  A trial stops at "
-        "the planning limit: max_sim_steps control steps simulated by its planner (--set max_sim_steps=N), the "
-        "same count on every host; it is then a failure unless its target is in the goal.  A task's time: "
-        "planning (wall clock, less compiling; measured, it stops nothing) plus robot time (simulated "
-        "execution).",
+        description="Run the paper's evaluation: --trials tasks for each failure, scenario and ASM.  results.json "
+        "is written after every trial, with each trial's provenance; a rerun continues, and refuses an --out of "
+        "other conditions (commit, maps, ...).  Then report.md (95 % intervals), bubble.png, actions.png.  The "
+        "planning limit counts simulated control steps (max_sim_steps), the same on every host.",
         epilog=LEVERS_EPILOG,
     )
     p.add_argument("--failures", metavar="LIST", help="comma separated (default: the robot's presets)")
@@ -48,8 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--allow-mixed",
         action="store_true",
-        help="add to an --out whose trials ran under other conditions (another commit, other maps, ...): "
-        "report.md then says which runs its trials come from",
+        help="add to an --out of other conditions (commit, maps, ...); report.md says so",
     )
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)

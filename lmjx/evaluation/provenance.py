@@ -26,7 +26,7 @@ import subprocess
 from dataclasses import asdict, fields
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from lmjx import __version__
 from lmjx.mapfile.digest import DIGEST_ATTR, content_digest
@@ -34,9 +34,23 @@ from lmjx.runtime.cores import usable_cores
 from lmjx.types import CONTROL_DT, PlannerConfig
 
 if TYPE_CHECKING:
-    from lmjx.evaluation.evaluate import EvalConfig
     from lmjx.mapfile.read import MapFile
     from lmjx.model.robot import Robot
+
+
+class RunConfig(Protocol):
+    """What a run's entry reads of its configuration (`lmjx.evaluation.evaluate.EvalConfig`)."""
+
+    failures: tuple[str, ...]
+    scenarios: tuple[int, ...]
+    asms: tuple[str, ...]
+    trials: int
+    seed: int
+    planner: PlannerConfig
+    backend: str
+    tasks: str
+    part: tuple[int, int]
+
 
 UNKNOWN = "unknown"
 COMMIT_ENV = "LMJX_COMMIT"  # names the commit of a checkout copied without its .git folder
@@ -169,7 +183,7 @@ def planner_fields(config: PlannerConfig, asm: str | None = None) -> dict[str, A
 
 
 def new_run(
-    robot: Robot, maps: dict[str, MapFile], config: EvalConfig, command: str | None, allow_mixed: bool = False
+    robot: Robot, maps: dict[str, MapFile], config: RunConfig, command: str | None, allow_mixed: bool = False
 ) -> dict[str, Any]:
     """The entry of one invocation of `lmjx evaluate` (results.json's header), with its id: a
     digest of the entry and a random nonce (every invocation has its own)."""
