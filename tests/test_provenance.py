@@ -69,6 +69,8 @@ def test_maps_carry_their_content_digest(small_map, tmp_path) -> None:
     copy = tmp_path / "case2.h5"
     shutil.copy(small_map, copy)
     with h5py.File(copy, "r+") as f:
+        if "push" in f["edges"]:  # (the build stores them: other counts in their place)
+            del f["edges/push"]
         g = f["edges"].create_group("push")
         g.create_dataset("counts", data=np.arange(6, dtype=np.int32).reshape(1, 2, 3))
         f.attrs["note"] = "an attribute"

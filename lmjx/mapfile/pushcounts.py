@@ -5,7 +5,7 @@ so that the planner's push weight costs nothing on the first decision.
 The group holds one entry per scenario and task set: `key` (the planner's name for the
 counts, `pushfield.counts_key`: a hash of what they are computed from, JAX's platform
 included), `scenario`, `tasks` and `counts` (ny, nx) per reach cell.  The counts are derived
-from the rest of the map: the map's content digest (benchmarks/map_digest.py) leaves them out.
+from the rest of the map: the map's content digest (`lmjx.mapfile.digest`) leaves them out.
 """
 
 from __future__ import annotations
