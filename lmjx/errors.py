@@ -24,3 +24,8 @@ class OutputPathError(LmjxError):
 
 class MapFileError(LmjxError):
     """A map file is missing, truncated, of another schema or of another robot."""
+
+
+class SceneError(LmjxError):
+    """A scene file is missing, malformed, or describes a scene that cannot be set up (objects
+    overlapping, off the table, through the arm's base; a goal the map does not reach)."""
