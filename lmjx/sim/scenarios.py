@@ -64,9 +64,11 @@ class Box:
     movable: bool = True
     rgba: tuple[float, float, float, float] = OBSTACLE_RGBA
     z: float | None = None  # centre height; default: resting on the table
-    friction: float = 0.5  # sliding friction (MuJoCo takes the larger of a touching pair's)
-    jitter: float | None = None  # [m] its own position jitter per trial; None: the scenario's
-    yaw_jitter: float | None = None  # [rad] its own yaw jitter per trial; None: the scenario's
+    # (the fields below are left out of the repr: it keys the push counts a map stores,
+    # `lmjx.planner.pushfield.counts_key`, which frictions and jitters do not change)
+    friction: float = field(default=0.5, repr=False)  # sliding friction (MuJoCo takes the larger of a pair's)
+    jitter: float | None = field(default=None, repr=False)  # [m] its own position jitter; None: the scenario's
+    yaw_jitter: float | None = field(default=None, repr=False)  # [rad] its own yaw jitter; None: the scenario's
 
     @property
     def zc(self) -> float:
@@ -87,7 +89,7 @@ class Scenario:
     yaw_jitter: float = 0.26  # [rad]
     tasks: str = "hard"  # the task set it belongs to
     budget: int = 30  # the task set's action budget (a planner's default max_actions)
-    table_friction: float = 0.5  # sliding friction of the table top
+    table_friction: float = field(default=0.5, repr=False)  # sliding friction of the table top (out of the repr: Box's)
 
     @property
     def movable(self) -> tuple[Box, ...]:
