@@ -1,5 +1,8 @@
-"""A map's content digest: SHA-256 over every dataset (name, dtype, shape, bytes), leaving out
-the attributes (a build's timings and device differ between builds of the same map).
+"""A map's content digest: SHA-256 over every dataset of its content (name, dtype, shape,
+bytes): the robot, the reach map, the edges and their index.  Left out: the attributes (a
+build's timings and device differ between builds of the same map) and what is derived from
+the content (`DERIVED`: the push counts, computed from the edges on the build's platform), so
+a map's digest is that of its content whichever lmjx version or platform added them.
 
 Two builds with the same command and seed are the same map when their digests agree; an
 evaluation split across machines or resumed on another one continues only on maps with the
@@ -17,6 +20,7 @@ import h5py
 import numpy as np
 
 ROWS = 1 << 20  # rows read at a time
+DERIVED = ("edges/push",)  # groups derived from the content, not hashed
 
 
 def _bytes(a: np.ndarray) -> bytes:
@@ -31,6 +35,7 @@ def digest(path: str, each: dict | None = None) -> tuple[str, int]:
     h, names = hashlib.sha256(), []
     with h5py.File(path, "r") as f:
         f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        names = [n for n in names if not any(n == d or n.startswith(d + "/") for d in DERIVED)]
         for name in sorted(names):
             ds = f[name]
             h.update(f"{name}|{ds.dtype.str}|{ds.shape}".encode())

@@ -154,7 +154,7 @@ def main() -> None:
     report: dict = {"edges": args.edges, "device": str(jax.devices()[0].device_kind), "devices": jax.device_count()}
     samples = None
     for sharded in () if args.copies_only else (False, True):
-        kernels = EdgeKernels(robot, reach.failure, config, args.edges, sharded=sharded)
+        kernels = EdgeKernels(robot, reach.failure, config, sharded=sharded)
         if samples is None:
             samples = sample_edges(reach, config, robot, 0, args.edges, kernels)
         kernels.rollout.compile()

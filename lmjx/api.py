@@ -86,13 +86,20 @@ class MapBuild:
     def summary(self) -> dict[str, Any]:
         """The JSON summary of `lmjx build-map --json`."""
         s = self.edges
+        stages = s.get("compile_by_stage", {})
+        top = ("bytes_per_state", "raw_bytes_per_state", "compile_by_stage", "compiled_for_later")
         return {
             "robot": self.robot.key,
             "failure": self.failure.spec,
             "out": str(self.path),
             "seed": self.seed,
+            # compiling, or loading compiled programs from the cache: each program once
+            "compile_seconds": round(sum(stages.values()), 4),
+            "compile_seconds_by_stage": stages,
+            # other failures' programs compiled for later builds (None: not asked for)
+            "compiled_for_later": s.get("compiled_for_later"),
             "reach": self.reach,
-            "edges": {k: v for k, v in s.items() if k not in ("bytes_per_state", "raw_bytes_per_state")},
+            "edges": {k: v for k, v in s.items() if k not in top},
             "bytes_per_state": round(s.get("bytes_per_state", 0.0), 2),
             "raw_bytes_per_state": round(s.get("raw_bytes_per_state", 0.0), 2),
             "device": s["device"],
@@ -118,6 +125,7 @@ def build_map(
     yes: bool = False,
     progress: bool = False,
     say: Any = None,
+    compile_presets: bool | None = None,
 ) -> MapBuild:
     """Build a failure's map file, as `lmjx build-map` does: the Reach-Ability map (cells of
     `cell` metres), then `edges` sampled edges (default: 10,000 on a CPU, 100,000 on a GPU;
@@ -127,7 +135,9 @@ def build_map(
     continues it.  `robot`: a Robot, a shipped robot's name or an MJCF's path (default the
     Panda); `device`: see `use_device`; `chunk`: edges computed at a time (not part of the
     result); `yes`: start even when the preflight estimates more than a day of work;
-    `say`: where the preflight's lines go (default: nowhere); `progress`: bars on stderr.
+    `say`: where the preflight's lines go (default: nowhere); `progress`: bars on stderr;
+    `compile_presets`: also compile the programs of the robot's other preset failures for
+    later builds on this machine, where the cache lacks them (None: on accelerators only).
 
     Example (small settings for a quick try: 10 cm cells, 200 edges; seconds on a CPU once
     compiled):
@@ -151,7 +161,7 @@ def build_map(
     path = Path(out) if out is not None else default_map_path(failure, robot)
     s = stream_map(
         path, failure, reach_cfg, bundle_cfg, robot, progress=progress, sharded=sharded, yes=yes,
-        say=say or (lambda line: None),
+        say=say or (lambda line: None), compile_presets=compile_presets,
     )  # fmt: skip
     result = MapBuild(path, robot, failure, seed, dict(s))
     if jax.process_index() == 0:

@@ -289,6 +289,7 @@ def _programs_ahead() -> list[Callable[[], None]]:
     from lmjx.model.failure import parse_failure
     from lmjx.model.robot import load_robot
     from lmjx.planner.clearance import clearance_kernel
+    from lmjx.planner.pushsamples import compile_program
     from lmjx.reach.reachability import attempt_plan, reach_config
 
     panda, ur, tiny = load_robot("panda"), load_robot("ur5e"), load_robot(str(TINY_ARM))
@@ -305,10 +306,12 @@ def _programs_ahead() -> list[Callable[[], None]]:
     return [
         ik(tiny, "J4=0.5"),
         rollout(tiny, "J4=0.5", False),
+        lambda: compile_program(tiny),  # (every map built stores its push counts)
         ik(panda, "case1"),
         rollout(panda, "case1", True),
         ik(panda, "case2"),
         rollout(panda, "case2", False),
+        lambda: compile_program(panda),
         ik(panda, "none"),
         rollout(panda, "none", True),
         lambda: clearance_kernel(panda).compile(),

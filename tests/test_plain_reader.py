@@ -17,7 +17,7 @@ def map_file(small_map):
 
 def test_reach_map_by_the_schema(map_file):
     with h5py.File(map_file, "r") as f:
-        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 2
+        assert f.attrs["schema"] == "lmjx-map" and int(f.attrs["schema_version"]) == 3
         assert f.attrs["contents"] == "reach+edges" and f.attrs["failure"] == "case2"
         assert list(f.attrs["locked_joints"]) == [6, 7]
         g = f["reach"]
@@ -87,3 +87,21 @@ def test_reconstruct_an_edge(map_file):
             if low.any():
                 near = min(near, float(np.min(np.hypot(gx, gy) - m.geom_size[g][0])))
     assert near <= 1e-3
+
+
+def test_push_counts_by_the_schema(map_file):
+    """/edges/push: the counts of scenarios 1-3 of both task sets, one (ny, nx) grid each,
+    computed on the build's platform; a cell's count is at most the edges the spatial index
+    lists there (an edge pushing over a cell passes low over it)."""
+    with h5py.File(map_file, "r") as f:
+        g = f["edges/push"]
+        ny, nx = f["reach/labels"].shape
+        pairs = sorted(zip(g["scenario"][...].tolist(), [t.decode() for t in g["tasks"][...]], strict=True))
+        counts = g["counts"][...]
+        keys = [k.decode() for k in g["key"][...]]
+        platform = g.attrs["platform"]
+        per_cell = np.diff(f["edges/index/offset"][...]).reshape(ny, nx)
+    assert pairs == sorted((s, t) for s in (1, 2, 3) for t in ("paper", "hard"))
+    assert counts.shape == (6, ny, nx) and counts.dtype == np.int32 and len(set(keys)) == 6
+    assert platform == "cpu" and counts.min() >= 0 and counts.sum() > 0
+    assert np.all(counts <= per_cell[None])

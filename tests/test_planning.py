@@ -1300,11 +1300,11 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
 
 
 def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
-    """The planner's push counts (`pushfield.cached_counts`): computed once (the counts
-    `push_pairs` gives), then read from the cache folder by another process's bundle without
-    computing, the same weighted score; another scenario, other edges, another robot model or
-    goal field is another file; a damaged file or one of another shape is computed
-    again and replaced; the cache off: no file."""
+    """The planner's push counts of a map that does not store them (`pushfield.cached_counts`):
+    computed once (the counts `push_pairs` gives), then read from the cache folder by another
+    process's bundle without computing, the same weighted score; another scenario, other
+    edges, another robot model or goal field is another file; a damaged file or one of
+    another shape is computed again and replaced; the cache off: no file."""
     import dataclasses
 
     from lmjx.planner import pushfield
@@ -1314,31 +1314,34 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path))
     m = load_map(plan_map)
     b, reach = m.edges, m.reach
+    b.push = {}  # (the map's own counts: tests/test_pushfield.py)
     sc = scenario(2, tasks="hard")
     field = GoalField(sc, *table_bounds(robot))
     key = pushfield.counts_key(robot, b, reach, sc, field)
     path = tmp_path / "pushes" / f"{key}.npy"
-    real = pushfield.push_pairs
-    computed = []  # the planner's push_pairs calls: (arguments, result)
+    real = pushfield.scenario_counts
+    computed = []  # the planner's scenario_counts calls: (arguments, result)
 
     def spy(*args, **kwargs):
         computed.append((args, kwargs, real(*args, **kwargs)))
         return computed[-1][2]
 
-    monkeypatch.setattr(pushfield, "push_pairs", spy)
+    monkeypatch.setattr(pushfield, "scenario_counts", spy)
     weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
     assert len(computed) == 1  # computed once, for this map, scenario, goal field and the default settings
-    args, kwargs, (cells, _) = computed[0]
+    args, kwargs, counts = computed[0]
     assert args[2] is b and args[4] == sc and np.array_equal(args[5].values, field.values)
     assert len(args) == 6 and set(kwargs) <= {"progress"}
-    counts = pushfield.push_counts(cells, reach)
+    cells, _ = pushfield.push_pairs(robot, m.failure, b, reach, sc, field)
+    assert np.array_equal(counts, pushfield.push_counts(cells, reach))
     assert path.exists() and np.array_equal(np.load(path), counts) and counts.sum() > 100
 
     def computing(*args, **kwargs):
         raise AssertionError("computed again")
 
-    monkeypatch.setattr(pushfield, "push_pairs", computing)
+    monkeypatch.setattr(pushfield, "scenario_counts", computing)
     fresh = load_map(plan_map).edges  # another bundle: nothing memoized on it
+    fresh.push = {}
     again = _score_field(robot, m.failure, reach, fresh, sc, PlannerConfig(push_weight=1.0))
     pts = np.random.default_rng(2).uniform([0.2, 0.0], [0.7, 0.5], (200, 2))
     assert again is not weighted and np.array_equal(again(pts), weighted(pts))
@@ -1352,7 +1355,7 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
         pushfield.counts_key(robot, b, reach, sc, doubled),
     ):
         assert k != key
-    monkeypatch.setattr(pushfield, "push_pairs", real)
+    monkeypatch.setattr(pushfield, "scenario_counts", real)
     for damage in (b"not an array", None):
         if damage is None:
             np.save(path, np.zeros((3, 3), np.int64))  # counts of another grid

@@ -205,7 +205,7 @@ def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int,
     failure = bench_failure(robot)
     reach = reach_map(failure, reach_config(robot, cell=cell) if cell else reach_config(robot), robot=robot)
     config = BundleConfig(edges=edges, seed=1, build_chunk=edges, interaction_points=robot.default_ips)
-    kernels = EdgeKernels(robot, reach.failure, config, edges, ik_chunk=reach.config.chunk)
+    kernels = EdgeKernels(robot, reach.failure, config, ik_chunk=reach.config.chunk)
     samples = sample_edges(reach, config, robot, 0, edges, kernels)
     idx, out = roll_out(samples, kernels)  # compiles, then one run
     compile_s = kernels.rollout.compile_seconds

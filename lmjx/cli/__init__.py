@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from lmjx import __version__
-from lmjx.cli import atlas, bench, buildmap, evaluate, info, locksearch, plan, reach, robots, scenarios
+from lmjx.cli import atlas, bench, buildmap, evaluate, info, locksearch, plan, reach, robots, scenarios, view
 from lmjx.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_USAGE,
@@ -32,7 +32,7 @@ from lmjx.cli.common import (
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "build_parser", "main", "threading_main"]
 
 # In the order of `lmjx --help`.
-MODULES = (reach, buildmap, plan, evaluate, locksearch, info, scenarios, atlas, bench, robots)
+MODULES = (reach, buildmap, plan, evaluate, locksearch, info, scenarios, atlas, bench, robots, view)
 
 EPILOG = """\
 progress: long work (reach, build-map, lock-search, evaluate, atlas) shows a progress bar on a

@@ -54,6 +54,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=_positive_int,
         help="edges computed and saved at a time (default: by platform); not part of the result",
     )
+    p.add_argument(
+        "--compile-presets",
+        action=argparse.BooleanOptionalAction,
+        help="also compile the programs of the robot's other preset failures and none, once per machine, so that "
+        "their builds load them (default: on a GPU, not on a CPU, where it takes minutes of the cores)",
+    )
     p.add_argument("--yes", action="store_true", help="start even when the preflight estimates more than a day of work")
     p.add_argument("--no-shard", action="store_true", help="use one device only (for comparisons)")
     _add_distributed(p)
@@ -65,6 +71,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def cmd_build_map(args: argparse.Namespace) -> int:
     from lmjx.api import build_map, default_map_path
+    from lmjx.edges.compiling import InterruptedAfterMap
     from lmjx.edges.stream import partial_path
     from lmjx.model.failure import parse_failure
 
@@ -80,7 +87,13 @@ def cmd_build_map(args: argparse.Namespace) -> int:
         b = build_map(
             failure, robot, out=out, edges=args.edges, seed=args.seed, cell=args.cell, chunk=args.chunk,
             sharded=not args.no_shard, yes=args.yes, progress=True, say=lambda line: print(line, file=sys.stderr),
+            compile_presets=args.compile_presets,
         )  # fmt: skip
+    except InterruptedAfterMap:
+        _leave_interrupted(
+            f"lmjx build-map: interrupted; the map is written to {out}; the other failures' programs not compiled "
+            "yet compile when they are built"
+        )
     except KeyboardInterrupt:
         _leave_interrupted(
             f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
@@ -97,10 +110,23 @@ def cmd_build_map(args: argparse.Namespace) -> int:
         f"  reach: PM {area['pm']:.4f} m^2, NPM+PM {area['npm_pm']:.4f} m^2 ({b.reach['seconds']:.2f} s)",
         f"  edges: {s['edges_valid']:,} valid of {s['edges_sampled']:,} sampled; rejected: {rej or 'none'}",
         f"  rollouts: {s['edge_steps']:,} edge-steps in {s['rollout_seconds']:.2f} s "
-        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s + {s['compile_seconds']:.1f} s compile "
+        f"({s['edge_steps_per_s'] / 1e6:.2f} M/s); edges {s['seconds']:.2f} s "
         f"(of which writing the map alongside {s['write_seconds']:.1f} s, its index {s['finish_seconds']:.1f} s)",
+        f"  compile: {summary['compile_seconds']:.1f} s ("
+        + ", ".join(f"{k} {v:.1f} s" for k, v in summary["compile_seconds_by_stage"].items())
+        + ")"
+        + _later(summary["compiled_for_later"]),
         f"  storage: {summary['bytes_per_state']:.1f} bytes per stored state "
         f"({summary['raw_bytes_per_state']:.0f} uncompressed)",
     ]
     _emit(args, summary, lines)
     return 0
+
+
+def _later(later: dict | None) -> str:
+    """The compile line's account of the other failures' programs (`lmjx.edges.compiling`)."""
+    if not later:
+        return ""
+    done = f"{len(later['compiled'])} compiled, {len(later['cached'])} already cached"
+    left = f", {later['left']} left" if later["left"] else ""
+    return f"; for later builds of {', '.join(later['failures'])}: {done}{left} ({later['seconds']:.1f} s)"

@@ -20,7 +20,7 @@ gives the same edges, for any chunk size and any number of devices.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -149,6 +149,9 @@ class Bundle:
     edge_steps: int  # nominal work: edges rolled out x the longest edge's steps
     states_evaluated: int  # states actually evaluated (each edge up to its end or first violation)
     device: str
+    # the push counts the map stores (`lmjx.planner.pushfield.counts_key` -> (ny, nx) counts):
+    # its robot's built-in scenarios, computed when it was built; empty for a map without them
+    push: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
     def n_edges(self) -> int:

@@ -149,9 +149,7 @@ def build_bundle(
     device = device_description()
     t_start = time.perf_counter()
     n = config.n_edges()
-    kernels = EdgeKernels(
-        robot, failure, config, n, sharded, reach.config.object_height / 2, ik_chunk=reach.config.chunk
-    )
+    kernels = EdgeKernels(robot, failure, config, sharded, reach.config.object_height / 2, ik_chunk=reach.config.chunk)
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress, unit="edge")
     chunks = [
         process_chunk(reach, config, robot, a, b, kernels, bar)

@@ -46,7 +46,7 @@ from lmjx.edges.chunk import EdgeChunk, chunk_ranges, pack_chunk
 from lmjx.edges.sampling import split_rolled
 from lmjx.errors import LmjxError
 from lmjx.mapfile.schema import PER_EDGE
-from lmjx.mapfile.write import EdgeWriter, write_head, write_index
+from lmjx.mapfile.write import EdgeWriter, store_push_counts, write_head, write_index
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime import threadprof
@@ -238,6 +238,11 @@ class MapWriter:
         self.from_writer.close()
         t1 = time.perf_counter()
         self.parts["drain"] = t1 - t0  # the writing left when the rollouts end
+        # the push counts of the robot's built-in scenarios, here where JAX computes (the
+        # states through the device once), added to the map before it is moved to `out`
+        push = store_push_counts(self.tmp, self.robot)
+        t1 = time.perf_counter()
+        self.parts["push"] = push["push_seconds"]
         os.replace(self.tmp, out)  # (a map already at `out` is freed here)
         t2 = time.perf_counter()
         shutil.rmtree(self.folder, ignore_errors=True)
@@ -262,6 +267,7 @@ class MapWriter:
             "writer_threads": w["threads_used"],
             "wait_seconds": round(self.t_wait, 4),
             "finish_seconds": round(w["timing"]["index"] + w["timing"]["close"], 4),
+            "push_seconds": push["push_seconds"],
             "writer_timing": {k: round(v, 4) for k, v in {**w["timing"], **self.parts}.items()},
             "edge_steps_per_s": round(w["edge_steps"] / max(kernels["rollout_seconds"], 1e-9), 1),
             # each process's own high-water mark (their sum bounds the build's)

@@ -2,7 +2,7 @@
 target in the cell, IK restarts, a twist and a duration: row i of a counter-based stream, so
 an edge is the same whatever range it is drawn in), its start solved by position-only IK,
 and the rollout kernel run over launches of fixed size (`EdgeKernels`: one set of programs
-per build).
+per build, the same for builds of any size and seed).
 """
 
 from __future__ import annotations
@@ -91,9 +91,22 @@ def rollout_kernel(
                          device=device)  # fmt: skip
 
 
+def launch_sizes(config: BundleConfig, sharded: bool = False) -> tuple[int | None, int]:
+    """(start IK problems, rollout edges) per launch and device: the launch sizes of a
+    build's programs, set by the platform and `config.chunk` alone, so that builds of any
+    edge count, seed or chunking (`build_chunk`) compile the same programs, and find them
+    compiled by an earlier build on the machine (a short last launch is padded).  The IK's
+    None: the Reach-Ability map's launch (its config's chunk or `default_chunk`), so that
+    the edges share the map's program; sharded over processes, the restarts of a rollout
+    launch's edges."""
+    kchunk = config.kernel_chunk()
+    return (kchunk * config.ik_restarts if sharded else None), kchunk
+
+
 class EdgeKernels:
     """The start IK and the rollout programs of one failure's edges, made once per build
-    with fixed launch sizes (so every chunk reuses them).  `sharded` splits every launch
+    with launch sizes that depend on neither the number of edges nor the seed
+    (`launch_sizes`: every chunk of every build reuses them).  `sharded` splits every launch
     over all devices of all processes; `device` runs them on that device alone.
 
     The start IK is the Reach-Ability map's own program where it can be (not sharded): the
@@ -107,7 +120,6 @@ class EdgeKernels:
         robot: Robot,
         failure: Failure,
         config: BundleConfig,
-        n: int,
         sharded: bool = False,
         cube_half: float = 0.025,
         device=None,
@@ -119,26 +131,16 @@ class EdgeKernels:
         self.config = config
         self.sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
         self.ik_sites = (robot.tcp_site, *self.sites)
-        devices = 1
-        if sharded and device is None:
-            from lmjx.runtime.sharding import device_count
-
-            devices = device_count()
-        per_chunk = min(config.edges_per_chunk(devices), n)
-        kchunk = config.kernel_chunk()
-        m = config.ik_restarts
-        if sharded:  # per device: the launches of a chunk, padded to whole blocks
-            ik_chunk = min(kchunk * m, -(-per_chunk * m // (1024 * devices)) * 1024)
+        sharded_ik, roll_chunk = launch_sizes(config, sharded)
         self.ik = IKBatch(
             robot,
             failure,
             self.ik_sites,
             default_ik_settings(iterations=config.ik_iterations, cube_half=cube_half),
-            ik_chunk or default_chunk(),
+            sharded_ik or ik_chunk or default_chunk(),
             sharded=sharded,
             device=device,
         )
-        roll_chunk = min(kchunk, max(1024, -(-per_chunk // (1024 * devices)) * 1024))
         self.rollout = rollout_kernel(robot, failure, config, roll_chunk, limits, sharded=sharded, device=device)
 
     def warm(self) -> None:

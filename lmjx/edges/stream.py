@@ -41,9 +41,7 @@ import json
 import os
 import shutil
 import sys
-import threading
 import time
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -54,7 +52,8 @@ from lmjx import __version__
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
 from lmjx.edges.chunkfile import saved_chunks
-from lmjx.edges.index import capsule_ends_kernel
+from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, preset_programs
+from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter
 from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts
 from lmjx.errors import ConfigError, OutputPathError
@@ -62,9 +61,10 @@ from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_reach_map
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
-from lmjx.reach.reachability import ReachConfig, ReachResult, reach_map
+from lmjx.reach.reachability import ReachConfig, ReachResult, reach_ik, reach_map
 from lmjx.runtime import threadprof
-from lmjx.runtime.batching import device_description
+from lmjx.runtime.batching import backend, device_description
+from lmjx.runtime.cache import cache_dir
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import check_writable
 from lmjx.runtime.progress import Progress
@@ -195,14 +195,20 @@ def build_map(
     sharded: bool = True,
     yes: bool = False,
     say=print,
+    compile_presets: bool | None = None,
 ) -> dict:
     """Build (or finish) the map file `out`: reach map + edge bundle, streamed.  Returns a
     summary (for the command line).  The interpreter's switch interval is at most
-    `SWITCH_INTERVAL` meanwhile (restored after)."""
+    `SWITCH_INTERVAL` meanwhile (restored after).
+
+    `compile_presets`: also compile the programs of the robot's other preset failures
+    (`lmjx.edges.compiling`) where the cache lacks them, after the build's own, and wait for
+    them before returning; None: on accelerators (on a CPU the compiling would take the
+    cores the build needs), with a cache folder, in one process."""
     before = sys.getswitchinterval()
     sys.setswitchinterval(min(before, SWITCH_INTERVAL))
     try:
-        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say)
+        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say, compile_presets)
     finally:
         sys.setswitchinterval(before)
 
@@ -217,6 +223,7 @@ def _build_map(
     sharded: bool,
     yes: bool,
     say,
+    compile_presets: bool | None,
 ) -> dict:
     import jax
 
@@ -290,22 +297,42 @@ def _build_map(
     device = device_description()
     half = reach_cfg.object_height / 2
     if split:
-        kernel_sets = [EdgeKernels(robot, failure, config, n, False, half, device=d, ik_chunk=reach_cfg.chunk)
+        kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=d, ik_chunk=reach_cfg.chunk)
                        for d in jax.local_devices()]  # fmt: skip
     else:
-        kernel_sets = [EdgeKernels(robot, failure, config, n, sharded, half, ik_chunk=reach_cfg.chunk)]
-    # The edges' programs compile in a thread of their own while the reach map is computed
-    # (they do not depend on it).
-    # the edge programs and the spatial index's capsule program
-    warmed = _in_background(lambda: [*(ks.warm() for ks in kernel_sets), capsule_ends_kernel(robot).compile()])
+        kernel_sets = [EdgeKernels(robot, failure, config, sharded, half, ik_chunk=reach_cfg.chunk)]
+    capsules = capsule_ends_kernel(robot)  # one per process: its compiling before this build is not this build's
+    capsules_before = capsules.compile_seconds
+    presets = None
+    if compile_presets is None:
+        compile_presets = backend() != "cpu" and cache_dir() is not None
+    elif compile_presets and lead and cache_dir() is None:
+        say("other failures' programs are not compiled ahead: there is no cache to keep them (--cache-dir off)")
+    if compile_presets and jax.process_count() == 1 and cache_dir() is not None:
+        presets = PresetCompiler(preset_programs(robot, failure, reach_cfg, config, half))
+    # The edges' programs and the spatial index's (its capsule program and its passes) compile in
+    # a thread of their own while the reach map is computed (they do not depend on it); then, for
+    # later builds, the other presets' programs.
+    xs, ys = reach_cfg.grid()
+    index_before = index_totals()
+    background = BackgroundCompile(
+        [
+            *(ks.warm for ks in kernel_sets),
+            capsules.compile,
+            lambda: warm_index(robot, len(xs), len(ys), reach_cfg.cell),  # on the grid's size only
+        ],
+        presets,
+    )
     t0 = time.perf_counter()
+    reach_compile = None  # the reach map's compiling, when it is computed here
     if reach is None:
         # every process computes the reach map (the edges are drawn from it)
         reach = reach_map(failure, reach_cfg, robot=robot, progress=progress and lead)
+        reach_compile = reach.compile_seconds
         if lead and not has_reach:
             write_reach_map(folder / "reach.h5", reach, robot)
     t_reach = time.perf_counter() - t0
-    warmed()
+    background.wait_own()
     compiled_before = max(ks.compile_seconds for ks in kernel_sets)
     bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
     bar.update(2 * sum(b - a for a, b in done))
@@ -359,53 +386,66 @@ def _build_map(
     compile_seconds = max(ks.compile_seconds for ks in kernel_sets) - compiled_before
     edge_seconds = time.perf_counter() - t1 - compile_seconds
     summary = {"device": device, "devices": devices, "processes": jax.process_count()}
+    stages = _compile_by_stage(robot, failure, reach_cfg, reach_compile, kernel_sets)
+    index_figures = index_totals(since=index_before)
+    # the index's: its capsule program and its passes' programs
+    stages["index"] = round(capsules.compile_seconds - capsules_before + index_figures.get("compile_seconds", 0.0), 4)
     if writer is not None:
         try:
-            summary |= writer.finish(out, _totals(kernel_sets), edge_seconds, device)
+            summary |= writer.finish(out, _totals(kernel_sets, stages["edges"]), edge_seconds, device)
         except BaseException:
             writer.abort()
             raise
+        summary["compile_by_stage"] = stages
         summary["reach_seconds"] = t_reach
         # from the first chunk to the finished file, compilation excluded
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
+        # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the
+        # host, its programs' compilation (none where this process or the cache has them)
+        summary["index"] = index_figures
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
+    if background.presets is not None:
+        background.finish(say)
+        summary["compiled_for_later"] = background.presets.summary()
     return summary
 
 
-def _in_background(fn: Callable[[], object]) -> Callable[[], None]:
-    """Start `fn` in a daemon thread (an error of the caller's does not wait for it); the
-    function returned waits for it to end and raises its exception, if any."""
-    failed: list[BaseException] = []
+def _compile_by_stage(
+    robot: Robot,
+    failure: Failure,
+    reach_cfg: ReachConfig,
+    reach_compile: float | None,
+    kernel_sets: list[EdgeKernels],
+) -> dict[str, float]:
+    """The build's compiling (or loading compiled programs from the cache) by stage, each
+    program counted once: the reach map's IK program (`reach_compile`: the reach map's wait
+    for it, whichever thread compiled it; None when the reach map was resumed), the edges'
+    programs less that one where they share it (the longest of the devices': they compile
+    side by side)."""
+    reach_program = None if reach_compile is None else reach_ik(robot, failure, reach_cfg).kernel.placed
 
-    def run() -> None:
-        try:
-            fn()
-        except BaseException as e:  # handed to whoever waits
-            failed.append(e)
+    def edges(ks: EdgeKernels) -> float:
+        shared = ks.ik.kernel.placed == reach_program
+        return ks.rollout.compile_seconds + (0.0 if shared else ks.ik.compile_seconds)
 
-    thread = threading.Thread(target=run, name="lmjx-compile", daemon=True)
-    thread.start()
-
-    def wait() -> None:
-        thread.join()
-        if failed:
-            raise failed[0]
-
-    return wait
+    return {
+        "reach": round(reach_compile or 0.0, 4),
+        "edges": round(max(edges(ks) for ks in kernel_sets), 4),
+    }
 
 
-def _totals(kernel_sets: list[EdgeKernels]) -> dict:
-    """The build's kernel figures: compilation as the longest of the devices' (they compile
-    side by side), run times summed over the devices (device-seconds)."""
+def _totals(kernel_sets: list[EdgeKernels], compile_seconds: float) -> dict:
+    """The build's kernel figures: the edges' compilation (`_compile_by_stage`), run times
+    summed over the devices (device-seconds)."""
     timing: dict[str, float] = {}
     for ks in kernel_sets:
         for k, v in ks.rollout.timing.items():
             timing[k] = timing.get(k, 0.0) + v
     return {
-        "compile_seconds": max(ks.compile_seconds for ks in kernel_sets),
+        "compile_seconds": compile_seconds,
         "rollout_seconds": sum(ks.rollout.kernel_seconds for ks in kernel_sets),
         "rollout_timing": timing,
         "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets),

@@ -16,7 +16,8 @@ from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
 from lmjx.mapfile.lazystates import StateReader
-from lmjx.mapfile.schema import SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
+from lmjx.mapfile.pushcounts import read_push_counts
+from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
 from lmjx.model.failure import Failure
 from lmjx.model.robot import ROBOTS, Robot, as_robot, load_robot
 from lmjx.reach.reachability import ReachConfig, ReachResult
@@ -152,7 +153,7 @@ def load_map(
             if attr_str(attrs.get("schema", "")) != SCHEMA:
                 raise MapFileError(f"{p} is an HDF5 file but not an lmjx map (no schema='{SCHEMA}' attribute)")
             version = int(attrs.get("schema_version", -1))
-            if version != SCHEMA_VERSION:
+            if version not in READ_VERSIONS:
                 rebuild = ""
                 if version == 1 and "failure" in attrs:
                     robot_name = file_robot(attrs)
@@ -162,8 +163,8 @@ def load_map(
                         f'--failure "{attr_str(attrs["failure"])}" --out {p}'
                     )
                 raise MapFileError(
-                    f"{p} has map schema version {version}; this lmjx ({__version__}) reads version {SCHEMA_VERSION}"
-                    + rebuild
+                    f"{p} has map schema version {version}; this lmjx ({__version__}) reads versions "
+                    f"{READ_VERSIONS[0]} to {SCHEMA_VERSION}" + rebuild
                 )
             robot = robot_for_file(p, attrs, robot) if check_robot else (robot or load_robot(file_robot(attrs)))
             if check_robot and attr_str(attrs.get("robot_model_hash", "")) != robot.model_hash:
@@ -263,4 +264,5 @@ def _read_edges(g: h5py.Group, failure: Failure, lazy: bool) -> Bundle:
         edge_steps=int(a["edge_steps"]),
         states_evaluated=int(a["states_evaluated"]),
         device=attr_str(a["device"]),
+        push=read_push_counts(g),
     )

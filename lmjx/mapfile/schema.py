@@ -13,7 +13,9 @@ import h5py
 import numpy as np
 
 SCHEMA = "lmjx-map"
-SCHEMA_VERSION = 2  # 2: the spatial index lists the edges whose whole arm (swept capsules) reaches a cell
+SCHEMA_VERSION = 3  # 3: /edges/push, the push counts of the robot's built-in scenarios
+# 2: the spatial index lists the edges whose whole arm (swept capsules) reaches a cell
+READ_VERSIONS = (2, 3)  # what this lmjx reads (a version 2 map: its push counts computed when needed)
 LABEL_MEANING = "0 unreachable, 1 NPM only (push/poke), 2 PM (grasp)"
 STR_DTYPE = h5py.string_dtype(encoding="utf-8")
 PER_EDGE = {

@@ -6,6 +6,7 @@ file, then rename), so an interrupted write never leaves a corrupt map.
 from __future__ import annotations
 
 import collections
+import time
 from pathlib import Path
 
 import h5py
@@ -14,6 +15,7 @@ import numpy as np
 from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
+from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.schema import (
     DEFLATE_LEVEL,
     EDGE_ROWS,
@@ -120,8 +122,10 @@ def _robot_of(reach: ReachResult) -> Robot:
 def write_map(
     path: str | Path, reach: ReachResult, bundle: Bundle | None, robot: Robot | str | Path | None = None
 ) -> dict:
-    """Write a map file: the Reach-Ability map and, when given, the edge bundle.  Atomic
-    (temp file, then rename).  Returns storage figures (bytes per stored edge state)."""
+    """Write a map file: the Reach-Ability map and, when given, the edge bundle with the
+    push counts of the robot's built-in scenarios (`mapfile.pushcounts`, computed from the
+    edges as written).  Atomic (temp file, then rename).  Returns storage figures (bytes
+    per stored edge state) and the push counts' time."""
     robot = as_robot(robot) if robot is not None else _robot_of(reach)
     sizes: dict = {}
     with atomic_path(path) as tmp:
@@ -133,6 +137,8 @@ def write_map(
                 w.add_edges({name: getattr(bundle, name) for name in PER_EDGE})
                 write_index(w.group, reach, bundle.index_offset, bundle.index_edges)
                 sizes = w.close(bundle_attrs(bundle))
+        if bundle is not None:
+            sizes |= store_push_counts(tmp, robot)
         if bundle is not None and bundle.n_states:
             sizes["file_bytes_per_state"] = Path(tmp).stat().st_size / bundle.n_states
     return sizes
@@ -371,3 +377,24 @@ def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -
     f.attrs["locked_joints"] = np.array([j for j, _ in failure.locked], dtype=np.int32)
     f.attrs["locked_angles"] = np.array([a for _, a in failure.locked], dtype=np.float64)
     f.attrs["contents"] = contents
+
+
+def store_push_counts(path: str | Path, robot: Robot, progress: bool = False) -> dict:
+    """Compute the push counts of the map at `path` (reach map and edges written) and add
+    them to it (`/edges/push`); figures back (seconds, entries).  Runs where JAX computes
+    (the map's states go through the device once, `lmjx.planner.pushsamples`)."""
+    from lmjx.mapfile.read import load_map
+    from lmjx.planner.clearance import FIXED_MARGIN, MIN_EDGE_STATES
+    from lmjx.planner.pushfield import COUNTS_VERSION, HEIGHT, MAX_ANGLE, builtin_counts
+    from lmjx.runtime.batching import backend
+
+    t0 = time.perf_counter()
+    with load_map(path, robot, lazy=True) as m:
+        assert m.edges is not None and m.reach is not None
+        entries = builtin_counts(robot, m.failure, m.edges, m.reach, progress)
+    seconds = time.perf_counter() - t0
+    attrs = {"platform": backend(), "counts_version": COUNTS_VERSION, "max_angle_deg": MAX_ANGLE, "height_m": HEIGHT,
+             "fixed_margin_m": FIXED_MARGIN, "min_edge_states": MIN_EDGE_STATES, "seconds": seconds}  # fmt: skip
+    with h5py.File(path, "r+") as f:
+        write_push_counts(f["edges"], entries, attrs)
+    return {"push_seconds": round(time.perf_counter() - t0, 4), "push_entries": len(entries)}

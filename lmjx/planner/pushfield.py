@@ -6,7 +6,7 @@ target beside the opening's far edge looks as good as one that leaves it in fron
 opening, although from the first no edge of the map pushes it on.  `push_pairs` finds,
 for every reach cell, the edges of the map that can push a target there toward the goal:
 their start is clear of the scene's fixed obstacles (by `FIXED_MARGIN`), and before their
-first state within that margin (the cut `actions.cut_at_fixed` makes; an edge left with
+first state within that margin (the cut `clearance.cut_at_fixed` makes; an edge left with
 fewer than MIN_EDGE_STATES states is never offered, nor counted) one of the arm's
 table-checked capsules passes low over the cell (its lower end at most `height` above the
 table) moving within `max_angle` of the goal field's descent (`push_counts`: how many per
@@ -15,10 +15,19 @@ where pushes toward the goal are as common as on the median cell, more where rar
 `GoalField(weights=...)` integrates it along the path: the score becomes the cost of the
 cheapest way to the goal through places the map can push from.
 
-The counts take minutes for a map of 1,000,000 edges on a CPU: `cached_counts` keeps
-them in lmjx's cache folder (`lmjx.runtime.cache`, `<dir>/pushes`), keyed by what they are computed
-from (the robot's model, the edges' starts, twists and durations, the reach grid, the
-scenario, the settings below, JAX's platform), so a map and scenario pay them once.
+The pairs come in two stages.  The map's part, the same for every scenario, is found once
+per bundle (`pushsamples.push_samples`: every state and capsule low over a reach cell, with
+its next state; on JAX's device, only those coming back).  A scenario's part is a pass over
+those samples (`_group_hits`): the direction test against the scenario's goal field, and,
+where the scenario has fixed obstacles, the start check and the cut, both only for the edges
+with a sample toward the goal and only on their states up to that sample's next one.
+
+Where the counts come from (`_score_field` in `lmjx.planner.scoring`): the map itself,
+which holds those of the robot's built-in scenarios and both task sets (`builtin_counts`,
+computed when the map is built and stored in `/edges/push`, used where the key
+`counts_key` matches, JAX's platform included); else lmjx's cache folder
+(`lmjx.runtime.cache`, `<dir>/pushes`: `cached_counts`); else they are computed here and
+kept there, so a map and scenario pay them once.
 """
 
 from __future__ import annotations
@@ -27,30 +36,65 @@ import dataclasses
 import hashlib
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
 from lmjx.edges.bundle import Bundle
-from lmjx.edges.index import capsule_ends_kernel
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.planner.clearance import EDGE_BOXES, FIXED_MARGIN, MIN_EDGE_STATES, box_kernel, cut_at_fixed
 from lmjx.planner.goalfield import GoalField
+from lmjx.planner.pushsamples import PushSamples, push_samples
 from lmjx.planner.transit import TransitPlanner
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import backend
 from lmjx.runtime.cache import cache_dir
+from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
-from lmjx.runtime.progress import Progress
-from lmjx.sim.scenarios import Scenario
+from lmjx.sim.scenarios import SCENARIOS, TASK_SETS, Scenario, scenario
 
 MAX_ANGLE = 45.0  # [deg] a capsule's motion counts as toward the goal within this of the field's descent
 HEIGHT = 0.05  # [m] ... when its lower end is at most this above the table
-STATES_PER_CALL = 200_000  # edge states read and checked per pass
-COUNTS_VERSION = 2  # what the cached counts mean (2: edges cut at the wall as actions are)
+COUNTS_VERSION = 2  # what the counts mean (2: edges cut at the wall as actions are)
 MEMO_ATTR = "_push_memo"  # kept on the bundle: (what, scenario, settings) -> what was computed for it
+PARALLEL_SAMPLES = 1 << 18  # samples from which a scenario's direction test runs on all cores
+READ_ROWS = 1 << 20  # edge states read at a time from a lazily opened map (the cut at a wall)
+
+
+@dataclasses.dataclass(frozen=True)
+class StoredCounts:
+    """The push counts of one scenario, as a map stores them (`/edges/push`)."""
+
+    key: str  # `counts_key`
+    scenario: int
+    tasks: str
+    counts: np.ndarray  # (ny, nx) int32
+
+
+def scenario_field(robot: Robot, sc: Scenario) -> GoalField:
+    """The scenario's goal field over the robot's table, unweighted: what the counts are
+    computed against (`lmjx.planner.scoring` builds the same)."""
+    arm = robot.arm
+    lo, hi = arm.table_center[:2] - arm.table_half[:2], arm.table_center[:2] + arm.table_half[:2]
+    return GoalField(sc, lo, hi)
+
+
+def builtin_counts(
+    robot: Robot, failure: Failure, bundle: Bundle, reach: ReachResult, progress: bool = False
+) -> list[StoredCounts]:
+    """The push counts of the robot's built-in scenarios (1, 2, 3), each task set: what a
+    map stores when it is built (the map's samples found once for all of them)."""
+    out = []
+    for tasks in TASK_SETS:
+        for number in sorted(SCENARIOS):
+            sc = scenario(number, robot.profile.task_scale, tasks)
+            field = scenario_field(robot, sc)
+            counts = scenario_counts(robot, failure, bundle, reach, sc, field, progress)
+            out.append(StoredCounts(counts_key(robot, bundle, reach, sc, field), number, tasks, counts))
+    return out
 
 
 def far_objects(sc: Scenario) -> np.ndarray:
@@ -74,76 +118,155 @@ def push_pairs(
     height: float = HEIGHT,
     progress: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(cell, edge) pairs, unique, cells numbered iy * nx + ix: the edges that push toward the
-    goal over each reach cell (module docstring).  A capsule's motion is that of its lower
-    end from one state to the next.  `progress`: a bar (or lines) on stderr, per edge."""
+    """(cell, edge) pairs, unique, sorted by cell then edge, cells numbered iy * nx + ix: the
+    edges that push toward the goal over each reach cell (module docstring).  A capsule's
+    motion is that of its lower end from one state to the next.  `progress`: a bar (or lines)
+    on stderr while the map's push samples are found."""
+    samples = bundle_samples(robot, bundle, reach, height, progress)
+    hit = _group_hits(samples, robot, failure, bundle, sc, field, max_angle)
+    cells, edges = samples.group_cell[hit].astype(np.int64), samples.group_edge[hit].astype(np.int64)
+    order = np.lexsort((edges, cells))
+    return cells[order], edges[order]
+
+
+def scenario_counts(
+    robot: Robot,
+    failure: Failure,
+    bundle: Bundle,
+    reach: ReachResult,
+    sc: Scenario,
+    field: GoalField,
+    progress: bool = False,
+) -> np.ndarray:
+    """(ny, nx) int32 the push counts of the scenario (`push_counts` of `push_pairs`, with
+    the default MAX_ANGLE and HEIGHT), without sorting the pairs."""
+    samples = bundle_samples(robot, bundle, reach, HEIGHT, progress)
+    hit = _group_hits(samples, robot, failure, bundle, sc, field, MAX_ANGLE)
+    ny, nx = reach.labels.shape
+    return np.bincount(samples.group_cell[hit], minlength=ny * nx).astype(np.int32).reshape(ny, nx)
+
+
+def counts_for(
+    robot: Robot, failure: Failure, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField
+) -> tuple[np.ndarray, str]:
+    """The scenario's push counts (`field`: its unweighted goal field) and where they came
+    from: "map" (stored when the map was built, under the same key), "cache" (lmjx's cache
+    folder), or "computed" (then kept in the cache folder)."""
+    key = counts_key(robot, bundle, reach, sc, field)
+    stored = bundle.push.get(key)
+    if stored is not None and stored.shape == reach.labels.shape:
+        return stored, "map"
+    computed: list[bool] = []
+
+    def compute() -> np.ndarray:
+        computed.append(True)
+        return scenario_counts(robot, failure, bundle, reach, sc, field, progress=True)
+
+    counts, _ = cached_counts(key, reach.labels.shape, compute)
+    return counts, "computed" if computed else "cache"
+
+
+def bundle_samples(robot: Robot, bundle: Bundle, reach: ReachResult, height: float, progress: bool) -> PushSamples:
+    """The map's push samples (`pushsamples.push_samples`), found once per bundle, height
+    and reach grid."""
+    memo = bundle_memo(bundle)
+    key = ("push samples", robot.model_hash, height, reach.config.cell, float(reach.xs[0]), float(reach.ys[0]),
+           reach.labels.shape)  # fmt: skip
+    if key not in memo:
+        memo[key] = push_samples(robot, bundle, reach, height, progress)
+    return memo[key]
+
+
+def _group_hits(
+    s: PushSamples, robot: Robot, failure: Failure, bundle: Bundle, sc: Scenario, field: GoalField, max_angle: float
+) -> np.ndarray:
+    """(G,) whether each (edge, cell) group of samples holds one that pushes toward the
+    goal before the edge's cut at a fixed obstacle, its start clear of them."""
+    if not len(s):
+        return np.zeros(0, bool)
+    ok = _toward(s, field, max_angle)
+    if sc.fixed:
+        edge = s.sample_edge()
+        prefix = _prefixes(s, edge, ok, robot, failure, bundle, sc)
+        ok &= s.k + 1 < prefix[edge]
+    return np.logical_or.reduceat(ok, s.group_start)
+
+
+def _toward(s: PushSamples, field: GoalField, max_angle: float) -> np.ndarray:
+    """(n,) whether each sample's motion lies within `max_angle` of the field's descent (its
+    gradient by central differences, at the field cell under the sample), in parts on all
+    cores (numpy's loops leave the interpreter lock)."""
+    gy, gx = np.gradient(field.values, field.cell)
+    g0, g1 = (-gx).ravel(), (-gy).ravel()  # the descent
+    gn = np.hypot(g0, g1)
+    cos_min = math.cos(math.radians(max_angle))
+    cell = s.field_index(field.lo, field.cell, field.shape)
+    out = np.empty(len(s), bool)
+
+    def part(a: int, b: int) -> None:
+        p, pn, fc = s.p[a:b].astype(np.float64), s.p_next[a:b].astype(np.float64), cell[a:b]
+        v0, v1 = pn[:, 0] - p[:, 0], pn[:, 1] - p[:, 1]
+        speed, n = np.hypot(v0, v1), gn[fc]
+        out[a:b] = (v0 * g0[fc] + v1 * g1[fc] >= cos_min * speed * n) & (n > 0)
+
+    threads = usable_cores()
+    cuts = np.linspace(0, len(s), threads + 1).astype(np.int64)
+    if threads == 1 or len(s) < PARALLEL_SAMPLES:
+        part(0, len(s))
+    else:
+        with ThreadPoolExecutor(threads, thread_name_prefix="lmjx-push") as pool:
+            list(pool.map(part, cuts[:-1], cuts[1:]))
+    return out
+
+
+def _prefixes(
+    s: PushSamples, edge: np.ndarray, ok: np.ndarray, robot: Robot, failure: Failure, bundle: Bundle, sc: Scenario
+) -> np.ndarray:
+    """(E,) how many states of each edge an action executes in the scenario, for the edges
+    with a sample that passes `ok` (0 for the others): those before its first state within
+    FIXED_MARGIN of a fixed obstacle (`cut_at_fixed`), 0 where that leaves fewer than
+    MIN_EDGE_STATES or the edge starts within the margin.  Only the states up to the last
+    passing sample's next one (or MIN_EDGE_STATES, to tell an edge cut shorter than that)
+    are checked: a cut further on does not change which samples count."""
+    lengths = np.asarray(bundle.length, np.int64)
+    offsets = np.asarray(bundle.offset, np.int64)
+    prefix = np.zeros(len(lengths), np.int64)
+    first = np.nonzero(np.diff(edge, prepend=-1))[0]  # each edge's first sample (sorted by edge)
+    kmax = np.full(len(lengths), -1, np.int64)
+    kmax[edge[first]] = np.maximum.reduceat(np.where(ok, s.k, -1), first)
+    cand = np.nonzero(kmax >= 0)[0]
+    if not len(cand):
+        return prefix
     tp = TransitPlanner(robot, failure, batched=True)
     tp.set_scene(sc, far_objects(sc), acting=False)
     fixed = np.nonzero(~tp.scene.movable)[0]
-    ny, nx = reach.labels.shape
-    found: list[np.ndarray] = []
-    if not len(fixed):
-        starts_clear = np.ones(bundle.n_edges, bool)
-    else:
-        starts_clear = tp.scene_slacks(np.asarray(bundle.q_start, np.float64))[:, fixed].min(axis=1) >= 0
-    edges = np.nonzero(starts_clear)[0]
-    arm = robot.arm
-    caps = np.asarray(arm.table_caps)
-    r_cap = np.asarray(arm.cap_r, np.float64)[caps]
-    ends_kernel = capsule_ends_kernel(robot)
-    boxes = box_kernel(robot, tp.scene.padded(EDGE_BOXES, fixed)) if len(fixed) else None
-    gy, gx = np.gradient(field.values, field.cell)  # the descent is minus this
-    cos_min = math.cos(math.radians(max_angle))
-    cell = reach.config.cell
-    x0, y0 = reach.xs[0] - cell / 2, reach.ys[0] - cell / 2
-    width = bundle.n_edges
-    lengths = np.asarray(bundle.length, np.int64)
-    offsets = np.asarray(bundle.offset, np.int64)
-    bar = Progress(total=len(edges), desc=f"push counts, scenario {sc.number}", enabled=progress, unit="edge")
+    clear = tp.scene_slacks(np.asarray(bundle.q_start[cand], np.float64))[:, fixed].min(axis=1) >= 0
+    cand = cand[clear]
+    need = np.minimum(np.maximum(kmax[cand] + 2, MIN_EDGE_STATES), lengths[cand])
+    owner = np.repeat(np.arange(len(cand)), need)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(need) - need, need)
+    q = _state_rows(bundle, offsets[cand][owner] + k)
+    boxes = box_kernel(robot, tp.scene.padded(EDGE_BOXES, fixed))
+    clearance = boxes.run(q)["box_clearance"][:, : len(fixed)].min(axis=1)
+    cut = cut_at_fixed(clearance, owner, k, lengths[cand])
+    cut[cut < MIN_EDGE_STATES] = 0  # such an edge is never offered (`edge_prefixes`)
+    prefix[cand] = cut
+    return prefix
+
+
+def _state_rows(bundle: Bundle, rows: np.ndarray) -> np.ndarray:
+    """(len(rows), nq) float32 the bundle's states `rows` (ascending): indexed in memory, or,
+    from a lazily opened map, read in blocks of at most READ_ROWS consecutive rows."""
+    if isinstance(bundle.q, np.ndarray):
+        return np.asarray(bundle.q[rows], np.float32)
+    out = np.empty((len(rows), bundle.q.shape[1]), np.float32)
     i = 0
-    while i < len(edges):
-        # a run of edges whose states (contiguous in the file) make one pass
-        j, n = i, 0
-        while j < len(edges) and (n == 0 or n + lengths[edges[j]] <= STATES_PER_CALL):
-            n += int(lengths[edges[j]])
-            j += 1
-        es = edges[i:j]
+    while i < len(rows):
+        lo = int(rows[i])
+        j = int(np.searchsorted(rows, lo + READ_ROWS))
+        out[i:j] = np.asarray(bundle.q[lo : int(rows[j - 1]) + 1])[rows[i:j] - lo]
         i = j
-        bar.update(len(es))
-        lo, hi = int(offsets[es[0]]), int(offsets[es[-1]] + lengths[es[-1]])
-        block = np.asarray(bundle.q[lo:hi], np.float32)
-        rows = np.concatenate([np.arange(offsets[e], offsets[e] + lengths[e]) for e in es]) - lo
-        q = block[rows]
-        lens = lengths[es]
-        owner = np.repeat(np.arange(len(es)), lens)
-        k = np.arange(len(owner)) - np.concatenate([[0], np.cumsum(lens)[:-1]])[owner]
-        clearance = None if boxes is None else boxes.run(q)["box_clearance"][:, : len(fixed)].min(axis=1)
-        prefix = cut_at_fixed(clearance, owner, k, lens)
-        prefix[prefix < MIN_EDGE_STATES] = 0  # such an edge is never offered (`edge_prefixes`)
-        ends = ends_kernel.run(q)
-        a = ends["a"][:, caps].astype(np.float64)
-        b = ends["b"][:, caps].astype(np.float64)
-        low = np.where((a[..., 2] <= b[..., 2])[..., None], a, b)  # (m, nc, 3)
-        z = low[..., 2] - arm.table_z - r_cap[None]
-        moving = k + 1 < prefix[owner]  # this state and the next are executed
-        row, cap = np.nonzero((z <= height) & moving[:, None])
-        if not len(row):
-            continue
-        p = low[row, cap, :2]
-        v = low[row + 1, cap, :2] - p
-        fx = np.clip(np.floor((p[:, 0] - field.lo[0]) / field.cell).astype(np.int64), 0, field.shape[1] - 1)
-        fy = np.clip(np.floor((p[:, 1] - field.lo[1]) / field.cell).astype(np.int64), 0, field.shape[0] - 1)
-        g = -np.stack([gx[fy, fx], gy[fy, fx]], axis=1)
-        speed, gn = np.hypot(v[:, 0], v[:, 1]), np.hypot(g[:, 0], g[:, 1])
-        toward = ((v * g).sum(axis=1) >= cos_min * speed * gn) & (speed > 1e-4) & (gn > 0)
-        cx = np.floor((p[toward, 0] - x0) / cell).astype(np.int64)
-        cy = np.floor((p[toward, 1] - y0) / cell).astype(np.int64)
-        inside = (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny)
-        e = es[owner[row[toward]]][inside]
-        found.append(np.unique((cy[inside] * nx + cx[inside]) * width + e))  # each edge once per cell
-    bar.close()
-    pairs = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
-    return pairs // width, pairs % width
+    return out
 
 
 def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
@@ -154,7 +277,8 @@ def push_counts(cells: np.ndarray, reach: ReachResult) -> np.ndarray:
 
 def counts_key(robot: Robot, bundle: Bundle, reach: ReachResult, sc: Scenario, field: GoalField) -> str:
     """What the push counts of this map and scenario are computed from (`push_pairs` with its
-    default MAX_ANGLE and HEIGHT), hashed: the cache's file name (`cached_counts`)."""
+    default MAX_ANGLE and HEIGHT), hashed: the counts' name in the map (`/edges/push`) and
+    the cache's file name (`cached_counts`)."""
     how = {k: v for k, v in dataclasses.asdict(bundle.config).items() if k not in ("chunk", "build_chunk")}
     h = hashlib.sha256()
     for text in (

@@ -33,23 +33,21 @@ class _Straight:
 def _score_field(
     robot: Robot, failure: Failure, reach: ReachResult, bundle: Bundle, sc: Scenario, cfg: PlannerConfig
 ) -> GoalField | _Straight:
-    """What Greedy and Lazy call "closest" (`PlannerConfig.path_score`, `push_weight`)."""
+    """What Greedy and Lazy call "closest" (`PlannerConfig.path_score`, `push_weight`).  The
+    push counts a weight needs: the map's own (stored when it was built), else those of the
+    cache folder, else computed and kept there (`lmjx.planner.pushfield`)."""
     if not cfg.path_score:
         return _Straight(sc)
     lo, hi = table_bounds(robot)
     if cfg.push_weight <= 0.0 or cfg.asm == "random":  # (Random scores nothing: no counts for it)
         return GoalField(sc, lo, hi)
-    from lmjx.planner.pushfield import bundle_memo, cached_counts, counts_key, push_counts, push_pairs, push_weights
+    from lmjx.planner.pushfield import bundle_memo, counts_for, push_weights
 
     memo = bundle_memo(bundle)  # the weighted field, once per bundle, scenario and weight
     key = ("field", sc, cfg.push_weight, cfg.target_margin)
     if key not in memo:
         plain = GoalField(sc, lo, hi)
-        counts, _ = cached_counts(
-            counts_key(robot, bundle, reach, sc, plain),
-            reach.labels.shape,
-            lambda: push_counts(push_pairs(robot, failure, bundle, reach, sc, plain, progress=True)[0], reach),
-        )
+        counts, _ = counts_for(robot, failure, bundle, reach, sc, plain)
         radius = float(sc.target.half[0]) + cfg.target_margin
         memo[key] = GoalField(sc, lo, hi, weights=push_weights(counts, reach, radius, cfg.push_weight))
     return memo[key]

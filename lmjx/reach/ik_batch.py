@@ -101,11 +101,16 @@ class IKBatch:
             return ChunkedKernel((*key, "traced"), one, [q_fixed.astype(np.float32)], inputs, self.chunk, **where)
         return ChunkedKernel((*key, tuple(q_fixed)), lambda *a: one(q_fixed, *a), [], inputs, self.chunk, **where)
 
-    def compile(self) -> None:
-        """Compile the program now (otherwise the first `solve` does)."""
+    @property
+    def kernel(self) -> ChunkedKernel:
+        """The program (made on first use, compiled by `compile` or the first `solve`)."""
         if self._kernel is None:
             self._kernel = self._make()
-        self._kernel.compile()
+        return self._kernel
+
+    def compile(self) -> None:
+        """Compile the program now (otherwise the first `solve` does)."""
+        self.kernel.compile()
 
     def solve(
         self,
@@ -128,10 +133,8 @@ class IKBatch:
         Returns:
           numpy arrays over the batch: ok, q (n, nq), pos_err, tool_z, table, self, cube.
         """
-        if self._kernel is None:
-            self._kernel = self._make()
         if self.masked:
             if mask is None:
                 raise ValueError("a masked IKBatch needs the per-problem mask of free joints")
-            return self._kernel.run(targets, site, pm, q0, mask, progress=progress)
-        return self._kernel.run(targets, site, pm, q0, progress=progress)
+            return self.kernel.run(targets, site, pm, q0, mask, progress=progress)
+        return self.kernel.run(targets, site, pm, q0, progress=progress)

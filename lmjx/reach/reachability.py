@@ -227,6 +227,14 @@ def attempt_plan(
     return sites, attempt_site, attempt_pm, z_lo, z_hi
 
 
+def reach_ik(robot: Robot, failure: Failure, config: ReachConfig) -> IKBatch:
+    """The IK program of `failure`'s Reach-Ability map (made, not compiled): the one the
+    edges' starts share (`lmjx.edges.sampling.EdgeKernels`)."""
+    sites = attempt_plan(robot, config)[0]
+    chunk = config.chunk or default_chunk()
+    return IKBatch(robot, failure, sites, config.ik_settings(), chunk, traced_locks=config.traced_locks)
+
+
 def reach_map(
     failure: Failure | str,
     config: ReachConfig | None = None,
@@ -272,14 +280,7 @@ def reach_map(
     strategy = config.strategy
     if strategy == "auto":
         strategy = "rounds" if device.startswith("cpu") else "batch"
-    batch = IKBatch(
-        robot,
-        failure,
-        sites,
-        config.ik_settings(),
-        config.chunk or default_chunk(),
-        traced_locks=config.traced_locks,
-    )
+    batch = reach_ik(robot, failure, config)
 
     def problems_for(cells: np.ndarray, attempts: np.ndarray) -> tuple[np.ndarray, ...]:
         """Flat problems for (cell, attempt) pairs, M restarts each, restart fastest."""

@@ -180,22 +180,29 @@ class ChunkedKernel:
 
     def compile(self) -> None:
         """Compile the program now (it is otherwise compiled by the first `run`).  Kernels
-        with the same key share one compilation, also when threads ask for it at once."""
+        with the same key share one compilation, also when threads ask for it at once.
+        `compile_seconds` grows by the time spent here: lowering and compiling (or loading
+        the program from the persistent cache), or waiting for another thread doing so;
+        nothing is run."""
         with self._lock:
             if self._fn is None:
                 t0 = time.perf_counter()
                 with _COMPILING_LOCK:
                     program = _COMPILING.setdefault(self.placed, threading.Lock())
                 with program:
-                    waited = time.perf_counter() - t0  # another thread was compiling this program
                     self._build_locked()
-                self.compile_seconds += waited
+                self.compile_seconds += time.perf_counter() - t0
 
-    def _build_locked(self) -> None:
-        if self.placed in _COMPILED:
-            self._fn, self._out = _COMPILED[self.placed]
-            return
-        t0 = time.perf_counter()
+    def lower(self) -> tuple[jax.stages.Lowered, list[str]]:
+        """The program lowered for launches of `chunk` items (what `compile` compiles), and
+        its output names; nothing is compiled or run."""
+        lowered, names, _ = self._lower()
+        return lowered, names
+
+    def _lower(self, export: bool = True) -> tuple[jax.stages.Lowered, list[str], bool]:
+        """`lower`, and whether the program came from an export: with `export` (and not
+        sharded) from the trace an earlier run saved in the cache folder (`exported`: no
+        tracing), else traced now."""
         # numpy dummies: a jnp.zeros of a new shape would itself compile a small program.
         dummy = [self._put(np.zeros((self.chunk, *s), d)) for d, s in self.inputs]
         axes = (None,) * len(self.shared) + (0,) * len(self.inputs)
@@ -235,20 +242,34 @@ class ChunkedKernel:
             plain = jax.jit(per_device(flat, self.mesh, len(self.shared), len(self.inputs)))
         else:
             plain = jax.jit(flat)
-        # Tracing these kernels takes seconds; a traced program saved by an earlier run (a JAX
-        # export) is loaded instead, and XLA's persistent cache then spares the compilation.
-        fn = plain if self.sharded else exported(self.key, plain, [*self.shared, *dummy], names)
+        args = [*self.shared, *dummy]
+        if export and not self.sharded:
+            # Tracing these kernels takes seconds; a traced program saved by an earlier run
+            # (a JAX export) is loaded instead, and XLA's persistent cache then spares the
+            # compilation.
+            fn = exported(self.key, plain, args, names)
+            if fn is not plain:
+                try:
+                    return fn.lower(*args), names, True
+                except Exception:  # an export this JAX cannot lower: traced as usual
+                    pass
+        return plain.lower(*args), names, False
+
+    def _build_locked(self) -> None:
+        if self.placed in _COMPILED:
+            self._fn, self._out = _COMPILED[self.placed]
+            return
+        lowered, names, from_export = self._lower()
         try:
-            compiled = fn.lower(*self.shared, *dummy).compile()
+            compiled = lowered.compile()
         except Exception:
-            if fn is plain:
+            if not from_export:
                 raise
-            compiled = plain.lower(*self.shared, *dummy).compile()  # an export this JAX cannot run
-        # One warm-up call is counted with the compilation: it loads the program onto the
-        # device, so that timed calls measure steady-state work.
-        res = jax.block_until_ready(compiled(*self.shared, *dummy))
-        self.compile_seconds = time.perf_counter() - t0
-        self._out = {k: (np.shape(v)[1:], np.dtype(v.dtype)) for k, v in zip(names, res, strict=True)}
+            lowered, names, _ = self._lower(export=False)  # an export this JAX cannot compile
+            compiled = lowered.compile()
+        # No warm-up call: the first launch loads what remains to load; its outputs'
+        # shapes come from the program.
+        self._out = {k: (tuple(v.shape[1:]), np.dtype(v.dtype)) for k, v in zip(names, compiled.out_info, strict=True)}
         self._fn = compiled
         _COMPILED[self.placed] = (compiled, self._out)
 
@@ -256,7 +277,7 @@ class ChunkedKernel:
         if self.device is not None:
             return jax.device_put(x, self.device)
         if self.mesh is None:
-            return jnp.asarray(x)
+            return jax.device_put(x)  # jnp.asarray would compile a small program per shape
         from lmjx.runtime.sharding import put_batch
 
         return put_batch(x, self.mesh)
@@ -297,7 +318,7 @@ class ChunkedKernel:
             return [put_replicated(np.asarray(a), self.mesh) for a in shared]
         if self.device is not None:
             return [jax.device_put(np.asarray(a), self.device) for a in shared]
-        return [jnp.asarray(np.asarray(a)) for a in shared]
+        return [jax.device_put(np.asarray(a)) for a in shared]
 
     def set_shared(self, *shared: np.ndarray) -> None:
         """New values for the shared arrays (the same shapes and dtypes: the same program)."""
@@ -306,6 +327,15 @@ class ChunkedKernel:
         if old != new:
             raise ValueError(f"shared arrays {new} do not match the program's {old}")
         self.shared = self._placed(shared)
+
+    def launch(self, *parts: np.ndarray) -> dict[str, jax.Array]:
+        """One call of the program on exactly `chunk` items, its outputs left on the device,
+        by name (for device-side work that follows; a kernel with nothing kept)."""
+        if self._fn is None:
+            self.compile()
+        assert self._fn is not None and not self.compact and self.mesh is None
+        placed = [self._put(np.asarray(p, dtype=d)) for p, (d, _) in zip(parts, self.inputs, strict=True)]
+        return dict(zip(self._out, self._fn(*self.shared, *placed), strict=True))
 
     def run(
         self,

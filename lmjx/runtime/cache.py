@@ -10,7 +10,10 @@ Beside them, not a compiled program: `<dir>/pushes`, the push counts of a map an
 The folder is, in this order: `--cache-dir DIR` on the command line, the environment
 variable `LMJX_CACHE_DIR`, `$XDG_CACHE_HOME/lmjx`, `~/.cache/lmjx`.  `off` turns lmjx's
 caching off (JAX then compiles every run; Warp keeps its own default cache).  A
-`JAX_COMPILATION_CACHE_DIR` the user set is left alone.  Nothing here compiles anything.
+`JAX_COMPILATION_CACHE_DIR` the user set is left alone.  Nothing here compiles anything;
+`in_jax_cache` tells whether a lowered program is in JAX's persistent cache without
+compiling it (what a build needs to compile the programs of later builds only where they
+are missing: `lmjx.edges.compiling`).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 ENV = "LMJX_CACHE_DIR"
 OFF = "off"
@@ -70,3 +74,32 @@ def configure_warp() -> None:
     text = os.environ.get(ENV)
     if text and text != OFF and wp.config.kernel_cache_dir is None:
         wp.config.kernel_cache_dir = str(Path(text) / "warp")
+
+
+def in_jax_cache(lowered: Any) -> bool | None:
+    """Whether JAX's persistent compilation cache holds the program `lowered` (a
+    `jax.stages.Lowered` of one jitted function) compiled, without compiling it: the cache
+    key JAX's compiler would compute for it, looked up.  None when it cannot tell (no
+    persistent cache, or a JAX whose internals differ from those this reads: JAX has no
+    public call for it); callers then compile, which loads a cached program anyway."""
+    try:
+        import numpy as np
+        from jax._src import compiler
+        from jax._src.interpreters import pxla
+
+        low = lowered._lowering
+        args = low.compile_args
+        devices = low._device_list
+        ins = tuple(pxla.maybe_concretize_mesh(s, devices) for s in args["in_shardings"])
+        outs = tuple(pxla.maybe_concretize_mesh(s, devices) for s in args["out_shardings"])
+        to_inputs, to_outputs = pxla.get_prop_to_input_output(ins, outs, len(args["ordered_effects"]))
+        dev = np.array(list(devices), dtype=object)  # as jax's _cached_compilation lays them out
+        options = pxla.create_compile_options(
+            low._hlo, args["tuple_args"], to_inputs, to_outputs, args["backend"], dev, dict(low._compiler_options_kvs)
+        )
+        key = compiler._get_cache_key(options, args["backend"], low._hlo, dev)
+        if key is None:
+            return None
+        return bool(compiler._is_executable_in_cache(args["backend"], key))
+    except Exception:  # another JAX's internals
+        return None

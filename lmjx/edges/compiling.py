@@ -1,0 +1,202 @@
+"""A build's compiling, once per machine: its own programs in a thread of their own while the
+Reach-Ability map is computed, then the programs that builds of the robot's other preset
+failures will need, so that a later build of another preset loads them from the cache
+(seconds) instead of compiling them (tens of seconds each).
+
+A failure's programs are the Reach-Ability map's IK (which the edges' starts share) and the
+edge rollout (`lmjx.edges.sampling.EdgeKernels`); their lock angles are compiled-in
+constants (a program taking them as inputs rounds differently, which would change the
+maps), so every failure has programs of its own, and their launch sizes depend on neither
+the edge count nor the seed.  The presets (the robot's and `none`) are compiled where JAX's
+persistent cache does not already hold them (`lmjx.runtime.cache.in_jax_cache`); a custom
+failure ('J2=0.3,J4=-1.5') compiles its own the first time it is built on a machine.  They
+are compiled, never run, and not kept in memory (the cache keeps them): host work beside
+the build's device work.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import signal
+import sys
+import threading
+import time
+import weakref
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.sampling import EdgeKernels
+from lmjx.model.failure import Failure, parse_failure
+from lmjx.model.robot import Robot
+from lmjx.reach.reachability import ReachConfig, reach_ik
+from lmjx.runtime.batching import ChunkedKernel
+from lmjx.runtime.cache import in_jax_cache
+
+
+class InterruptedAfterMap(KeyboardInterrupt):
+    """Ctrl-C twice while other failures' programs were compiling: the map is written."""
+
+
+def preset_failures(robot: Robot, failure: Failure) -> list[Failure]:
+    """`none` and the robot's presets, less `failure` (the same locked joints and angles)."""
+    specs = ["none", *robot.profile.presets]
+    return [f for f in (parse_failure(s, robot) for s in specs) if f.locked != failure.locked]
+
+
+def preset_programs(
+    robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: BundleConfig, cube_half: float
+) -> list[tuple[str, str, ChunkedKernel]]:
+    """(failure spec, stage, program) for the programs a one-process build of each other
+    preset (`preset_failures`) compiles with these settings: the same keys and launch sizes
+    (`reach_ik`, `EdgeKernels`), made, not compiled; each program once."""
+    out, seen = [], set()
+    for f in preset_failures(robot, failure):
+        edges = EdgeKernels(robot, f, config, False, cube_half, ik_chunk=reach_cfg.chunk)
+        for stage, kernel in (("ik", reach_ik(robot, f, reach_cfg).kernel), ("ik", edges.ik.kernel),
+                              ("rollout", edges.rollout)):  # fmt: skip
+            if kernel.key not in seen:
+                seen.add(kernel.key)
+                out.append((f.spec, stage, kernel))
+    return out
+
+
+@dataclass
+class PresetCompiler:
+    """Compiles the programs of `preset_programs` that JAX's persistent cache lacks, one
+    after the other (`run`); `stop` lets the program being compiled finish and starts no
+    other (a compilation cannot be interrupted, and one cut short while its result is
+    written would leave a half-written cache entry)."""
+
+    programs: list[tuple[str, str, ChunkedKernel]]
+    compiled: list[str] = field(default_factory=list)  # "case1 ik", ...: compiled here
+    cached: list[str] = field(default_factory=list)  # found in the cache: nothing to do
+    seconds: float = 0.0  # spent looking them up and compiling
+    error: str | None = None  # why the rest was not compiled (the build is not failed for it)
+    _stop: threading.Event = field(default_factory=threading.Event, repr=False)
+
+    @property
+    def failures(self) -> list[str]:
+        return list(dict.fromkeys(spec for spec, _, _ in self.programs))
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> None:
+        try:
+            for spec, stage, kernel in self.programs:
+                if self._stop.is_set():
+                    return
+                t0 = time.perf_counter()
+                lowered, _ = kernel.lower()
+                if in_jax_cache(lowered):
+                    self.cached.append(f"{spec} {stage}")
+                else:
+                    lowered.compile()  # into the persistent cache; the executable is dropped
+                    self.compiled.append(f"{spec} {stage}")
+                self.seconds += time.perf_counter() - t0
+        except Exception as e:  # a later build compiles what is missing
+            self.error = f"{type(e).__name__}: {e}"
+
+    def summary(self) -> dict:
+        left = len(self.programs) - len(self.compiled) - len(self.cached)
+        return {"failures": self.failures, "compiled": self.compiled, "cached": self.cached, "left": left,
+                "seconds": round(self.seconds, 4), **({"error": self.error} if self.error else {})}  # fmt: skip
+
+
+def _yield_cores() -> None:
+    """Lower this thread's scheduling priority (Linux: a thread's nice value, which the
+    compiler's worker threads started from it inherit), so that compiling for later builds
+    takes the cores the build leaves idle."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + 10))
+    except OSError:
+        pass
+
+
+_RUNNING: weakref.WeakSet[BackgroundCompile] = weakref.WeakSet()
+
+
+@atexit.register
+def _finish_at_exit() -> None:
+    """Before the interpreter exits (after a failed build, say): no other program is
+    started, and the one being compiled finishes, so that no cache entry is left
+    half-written (a command that leaves at once, on Ctrl-C, does not come here)."""
+    for background in list(_RUNNING):
+        background.abandon()
+        if background.thread.is_alive():
+            print("lmjx: finishing the program being compiled before leaving", file=sys.stderr)
+            background.thread.join()
+
+
+class BackgroundCompile:
+    """A build's compiling in a daemon thread of its own: `own` (the build's programs) one
+    after the other, then `presets` (other failures' programs, for later builds).
+    `wait_own` waits for the build's programs (raising their error, if any); `finish`, at the
+    end of the build, for the presets'; `abandon`, on a failed build, starts no other."""
+
+    def __init__(self, own: list[Callable[[], object]], presets: PresetCompiler | None = None) -> None:
+        self.presets = presets
+        self._own_done = threading.Event()
+        self._failed: list[BaseException] = []
+        self.thread = threading.Thread(target=self._run, args=(own,), name="lmjx-compile", daemon=True)
+        _RUNNING.add(self)
+        self.thread.start()
+
+    def _run(self, own: list[Callable[[], object]]) -> None:
+        try:
+            for step in own:
+                step()
+        except BaseException as e:  # handed to whoever waits
+            self._failed.append(e)
+            return
+        finally:
+            self._own_done.set()
+        if self.presets is not None:
+            _yield_cores()
+            self.presets.run()
+
+    def wait_own(self) -> None:
+        self._own_done.wait()
+        if self._failed:
+            raise self._failed[0]
+
+    def abandon(self) -> None:
+        if self.presets is not None:
+            self.presets.stop()
+
+    def finish(self, say: Callable[[str], None]) -> None:
+        """Wait for the presets' programs, saying so when there is a wait.  In the main
+        thread, a first Ctrl-C lets the program being compiled finish and starts no other;
+        a second leaves at once (`InterruptedAfterMap`)."""
+        if self.presets is None or not self.thread.is_alive():
+            return
+        names = ", ".join(self.presets.failures)
+        say(f"compiling the programs of {names} for later builds on this machine (once; Ctrl-C stops it; "
+            "the map is written)")  # fmt: skip
+        main = threading.current_thread() is threading.main_thread()
+        before = (signal.getsignal(signal.SIGINT) or signal.default_int_handler) if main else None
+
+        def first(signum: int, frame: object) -> None:
+            self.presets.stop()  # type: ignore[union-attr]
+            signal.signal(signal.SIGINT, before)
+            say("stopping once the program being compiled is done (Ctrl-C again leaves now; the map is written)")
+
+        if main:
+            signal.signal(signal.SIGINT, first)
+        try:
+            while self.thread.is_alive():
+                self.thread.join(0.2)
+        except KeyboardInterrupt as e:
+            raise InterruptedAfterMap() from e
+        finally:
+            if main and signal.getsignal(signal.SIGINT) is first:
+                signal.signal(signal.SIGINT, before)
