@@ -28,11 +28,11 @@ run: $(RUN_STAMP)
 	$(BIN)/lmjx build-map --failure case2 --out maps/case2.h5
 
 test: $(TEST_STAMP)
-	$(BIN)/ruff check lmjx kernels tests benchmarks
+	$(BIN)/ruff check lmjx kernels tests benchmarks examples
 	$(BIN)/python -m pytest -q --durations=15 tests
 
 lint: $(TEST_STAMP)
-	$(BIN)/ruff check lmjx kernels tests benchmarks
+	$(BIN)/ruff check lmjx kernels tests benchmarks examples
 
 bench: $(TEST_STAMP)
 	$(BIN)/lmjx bench

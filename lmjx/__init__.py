@@ -13,6 +13,17 @@ default; 'ur5e'), an MJCF's path or a Robot will do; wherever it takes a failure
   build_map(failure, robot, out)    a map file: reach map + edge bundle (`lmjx build-map`) -> MapBuild
   load_map(path)                    read and validate a map file (schema: maps/README.md) -> MapFile
   plan_task(map_file, scenario)     one task, closed loop (`lmjx plan`, Algorithm 3) -> PlanResult
+  load_scene(path, robot)           a scene file (docs/SCENES.md), checked, as a Task; shipped_scene(n, tasks)
+
+For a planner of one's own (docs/API.md):
+  MapFile.edges_over(region), MapFile.edge(i) -> Edge    the edges acting over a region; one edge's states
+  trajectory(edge, dt) -> Trajectory                     its joint trajectory, resampled; .write(csv or json)
+  transit(robot, scene, q_from, edge) -> Transit         the collision-checked transit to an edge, or why none
+  simulate(scene, state, actions)                        where each object ends, batched (CPU or GPU)
+  park_pose(map_file)                                    where a trial's arm starts
+  Executor, SimulatedRealWorld                           where actions run: a real robot's interface and
+                                                         its simulated reference implementation
+  Action, Observation                                    what an executor takes and reports
   use_device('cpu' | 'gpu')         where JAX runs (`--device`), before the first computation
   LmjxError                         base class of errors caused by user input
 
@@ -53,6 +64,20 @@ _EXPORTS = {
     "build_map": "api",
     "plan_task": "api",
     "use_device": "api",
+    "Task": "sim.scenarios",
+    "load_scene": "sim.scenefile",
+    "shipped_scene": "sim.scenefile",
+    "Edge": "mapfile.trajectory",
+    "Trajectory": "mapfile.trajectory",
+    "trajectory": "mapfile.trajectory",
+    "Transit": "toolkit",
+    "transit": "toolkit",
+    "simulate": "toolkit",
+    "park_pose": "toolkit",
+    "Action": "types",
+    "Observation": "types",
+    "Executor": "types",
+    "SimulatedRealWorld": "sim.realworld",
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

@@ -181,6 +181,7 @@ class PlanResult:
     failure: str
     scenario: int
     tasks: str
+    task: str  # what the task is called ("scenario 1", a scene file's name)
     asm: str
     seed: int
     simulator: str  # "cpu", "cpu-near", "gpu", or "none" (Random simulates nothing)
@@ -222,7 +223,7 @@ class PlanResult:
         t = self.trial
         end = "success" if t.success else "failure"
         return (
-            f"PlanResult({self.failure!r}, scenario {self.scenario} ({self.tasks} tasks), {self.asm}, "
+            f"PlanResult({self.failure!r}, {self.task} ({self.tasks} tasks), {self.asm}, "
             f"seed {self.seed}: "
             f"{end} ({t.reason}) after {t.actions} actions; planning {t.planning_s:.1f} s, robot time "
             f"{t.execution_s:.1f} s; target {t.final_distance * 100:.1f} cm from the goal's centre)"
@@ -235,6 +236,7 @@ class PlanResult:
             "failure": self.failure,
             "tasks": self.tasks,
             "scenario": self.scenario,
+            "task": self.task,
             "asm": self.asm,
             "seed": self.seed,
             "simulator": self.simulator,
@@ -249,7 +251,7 @@ class PlanResult:
 
 def plan_task(
     map_file: str | Path | MapFile,
-    scenario: int | Task,
+    scenario: int | Task | str | Path,
     asm: str = "greedy",
     seed: int = 0,
     tasks: str = "paper",
@@ -273,8 +275,11 @@ def plan_task(
     (1: clutter, 2: tunnel, 3: eleven boxes) of the task set `tasks` ("paper" or "hard")
     into its goal region with the edges of `map_file` (a map file's path, or a `MapFile`),
     choosing each action with `asm` ("random", "lazy" or "greedy").  `scenario` may also be a
-    `Task` resolved for the map's robot (`lmjx.sim.scenarios.resolve_task`; `tasks` is then
-    its own).  `seed` fixes the layout, the "real" world's physics and the planner's choices.
+    `Task` resolved for the map's robot (`lmjx.sim.scenarios.resolve_task`, `load_scene`;
+    `tasks` is then its own), or a scene file's path (docs/SCENES.md: checked as `load_scene`
+    checks it).  Whatever the task, a goal region with no reachable cell of the map under it
+    is refused before anything is simulated.  `seed` fixes the layout, the "real" world's
+    physics and the planner's choices.
     `max_actions`: the budget (default: the task set's); `candidates`: Greedy's simulated
     actions per decision (default 1,024 with the GPU simulator, 32 on the CPU);
     `planner`: the planner's levers, keys of `PlannerConfig` (`lmjx plan --help-levers`), as a
@@ -294,9 +299,11 @@ def plan_task(
     True
     """
     from lmjx.evaluation.levers import check_levers, planner_config, read_levers
-    from lmjx.evaluation.trial import SIMULATORS, resolve_simulator, run_trial, setup_trial
+    from lmjx.evaluation.trial import SIMULATORS, check_task, resolve_simulator, run_trial, setup_trial
     from lmjx.runtime.fileio import check_writable
     from lmjx.sim.scenarios import resolve_task
+    from lmjx.sim.scenecheck import check_goal
+    from lmjx.sim.scenefile import load_scene
     from lmjx.types import ASMS
 
     if asm not in ASMS:
@@ -314,13 +321,21 @@ def plan_task(
     m = map_file if isinstance(map_file, MapFile) else load_map(map_file, robot)
     assert m.robot is not None
     rob = m.robot
-    task = scenario if isinstance(scenario, Task) else resolve_task(scenario, rob, tasks)  # once, for everything below
+    # the task, once, for everything below
+    if isinstance(scenario, Task):
+        task = scenario
+    elif isinstance(scenario, str | Path):
+        task = load_scene(scenario, rob)
+    else:
+        task = resolve_task(scenario, rob, tasks)
     if failure is not None and as_failure(failure, rob).locked != m.failure.locked:
         wanted = failure.spec if isinstance(failure, Failure) else failure
         raise ConfigError(f"{m.path} holds a map of failure {m.failure.spec}, not {wanted}")
-    if m.edges is None:
+    if m.edges is None or m.reach is None:
         extra = "" if rob.key == "panda" else f" --robot {rob.key}"
         raise ConfigError(f"{m.path} has no edges; build it with: lmjx build-map{extra} --failure {m.failure.spec}")
+    check_task(rob, task)
+    check_goal(task, m.reach, task.name)
     if render is not None:
         from lmjx.sim.render import check_render_path
 
@@ -348,6 +363,7 @@ def plan_task(
         failure=m.failure.spec,
         scenario=task.number,
         tasks=task.tasks,
+        task=task.name,
         asm=asm,
         seed=seed,
         simulator=sim_name,

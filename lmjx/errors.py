@@ -28,3 +28,8 @@ class MapFileError(LmjxError):
 
 class MixedRunsError(LmjxError):
     """Trials of runs whose conditions differ (commit, maps, planner, ...) would be pooled."""
+
+
+class SceneError(LmjxError):
+    """A scene file is missing, malformed, or describes a scene that cannot be set up (objects
+    overlapping, off the table, through the arm's base; a goal the map does not reach)."""

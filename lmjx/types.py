@@ -52,6 +52,9 @@ class Action:
 
 @dataclass
 class Observation:
+    """What an executor reports after a reset or an action: the arm's measured joint angles,
+    the objects' estimated poses (the target first) and the execution time so far."""
+
     robot_q: np.ndarray  # (nq,) measured joint angles
     objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
     time: float  # seconds of execution so far
@@ -65,9 +68,22 @@ class Observation:
 
 
 class Executor(Protocol):
-    def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation: ...
+    """Where actions are executed: the robot and the objects, real or simulated.  A real
+    robot's backend implements these three methods; `lmjx.sim.realworld.SimulatedRealWorld`
+    is the reference implementation (a perturbed MuJoCo world observed with noise), and the
+    planner talks to nothing else (docs/API.md, "Executor")."""
 
-    def execute(self, action: Action) -> Observation: ...
+    def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation:
+        """Set up a trial: the objects at `layout.poses` ((n, 3) x, y, yaw: a real backend
+        asks for them to be placed so, or reports where they are), the arm moved to `robot_q`
+        (nq,); return the first observation."""
+        ...
+
+    def execute(self, action: Action) -> Observation:
+        """Run `action` (joint targets `action.q` and velocities `action.qd`, (T, nq), one
+        row every CONTROL_DT: the transit's first `transit_steps` rows, then the edge's),
+        wait for the objects to come to rest, and observe."""
+        ...
 
     def truth(self) -> np.ndarray:
         """(n, 7) true object poses (for scoring trials; a real backend returns its best estimate)."""

@@ -101,6 +101,8 @@ LINKED_PAGES = (
     "docs/ROBOTS.md",
     "docs/EVALUATION.md",
     "docs/evaluation/README.md",
+    "docs/SCENES.md",
+    "docs/API.md",
     "maps/README.md",
     "benchmarks/README.md",
 )

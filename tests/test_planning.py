@@ -1397,7 +1397,7 @@ def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
 
     _mf, sc, _scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, 6, 0, planner_scene=False)
     drawn = real_physics(robot, len(sc.movable), np.random.default_rng(0))
-    servos_only = replace(drawn, friction_scale=(), mass_scale=(), table_friction=0.5, robot_radius_offset=0.0)
+    servos_only = replace(drawn, friction_scale=(), mass_scale=(), table_friction_scale=1.0, robot_radius_offset=0.0)
     real = CpuSimulator(build_scene(robot, sc, servos_only), threads=1).simulate(tp.park, objects, acts)[:, 0, :2]
     ends = {}
     for servo in ("robot", "playback"):

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable
 
 from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
-from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, moved_notes, planner_levers
+from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, moved_notes, planner_levers, task_set
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -23,7 +23,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--failures", metavar="LIST", help="comma separated (default: the robot's presets)")
     _add_robot(p)
-    p.add_argument("--scenarios", default="1,2,3", metavar="LIST", help="comma separated (default 1,2,3)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--scenarios", metavar="LIST", help="the paper's scenarios, comma separated (default 1,2,3)")
+    which.add_argument(
+        "--scenes",
+        nargs="+",
+        metavar="FILE",
+        help="scene files instead (TOML: docs/SCENES.md)",
+    )
     p.add_argument(
         "--asms", default="random,lazy,greedy", metavar="LIST", help="comma separated (default random,lazy,greedy)"
     )
@@ -69,6 +76,25 @@ def _part(text: str) -> tuple[int, int]:
     return k, n
 
 
+def scene_tasks(paths: list[str], robot) -> tuple:
+    """The tasks of scene files, checked and placed for `robot`, each numbered by its file's
+    `number`, else by the first number from 1 up that no other scene has."""
+    from dataclasses import replace
+
+    from lmjx.errors import SceneError
+    from lmjx.sim.scenefile import load_scene
+
+    tasks = [load_scene(p, robot) for p in paths]
+    given: dict[int, str] = {}
+    for path, t in zip(paths, tasks, strict=True):
+        if t.number and t.number in given:
+            raise SceneError(f"--scenes: {given[t.number]} and {path} both have number = {t.number}; give each scene "
+                             "file its own number (it sets the trials' seeds)")  # fmt: skip
+        given.setdefault(t.number, path)
+    free = (n for n in range(1, 100) if n not in given)
+    return tuple(t if t.number else replace(t, scenario=replace(t.scenario, number=next(free))) for t in tasks)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
@@ -88,25 +114,35 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from lmjx.evaluation.stats import rate_text
     from lmjx.evaluation.trial import resolve_simulator
     from lmjx.runtime.fileio import check_writable, write_text_atomic
+    from lmjx.sim.scenecheck import check_goal
 
     robot = _load_robot(args)
     failures = _split(args.failures) if args.failures else tuple(robot.profile.presets)
     if not failures:
         raise ConfigError(f"the robot {robot.key} has no failure presets: give --failures (e.g. none)")
+    tasks = task_set(args, bool(args.scenes))
+    scenes = scene_tasks(args.scenes, robot) if args.scenes else ()
+    if scenes:  # the scenes' task sets, as the records name them
+        tasks = "+".join(dict.fromkeys(t.tasks for t in scenes))
     config = EvalConfig(
         failures=failures,
-        scenarios=_split(args.scenarios, int),
+        scenarios=tuple(t.number for t in scenes) if scenes else _split(args.scenarios or "1,2,3", int),
         asms=_split(args.asms),
         trials=args.trials,
         seed=args.seed,
-        tasks=args.tasks,
+        tasks=tasks,
         part=_part(args.part),
+        scenes=scenes,
     )
     config.validate()
     levers = planner_levers(args)
     planner_config("greedy", "cpu", levers)  # the planner's settings checked before anything is loaded or said
     out = Path(args.out)
     maps = load_maps(robot, config.failures, Path(args.maps or robot.maps_dir))  # before --out is made
+    for s in config.scenarios:  # every goal where each map reaches (before anything is simulated)
+        task = config.task(s, robot)
+        for m in maps.values():
+            check_goal(task, m.reach, f"{task.name} on {m.path}")
     check_writable(out / "results.json", "results")
     simulates = bool(set(config.asms) - {"random"})
     sim_name, why = resolve_simulator(args.sim) if simulates else ("cpu", "random does not simulate")

@@ -72,17 +72,17 @@ def _add_sim(p: argparse.ArgumentParser) -> None:
 
 def _add_planner_options(p: argparse.ArgumentParser) -> None:
     """The planner's options, shared by plan and evaluate."""
-    from lmjx.sim.scenarios import PAPER_BUDGET
-
     p.add_argument(
         "--tasks",
         choices=("paper", "hard"),
-        default="paper",
-        help="the task set: paper (default; goals and budget calibrated to the paper's outcomes) or hard (goals "
-        "22-28 cm away); docs/EVALUATION.md",
+        help="the shipped scenarios' task set: paper (default; goals and budget calibrated to the paper's outcomes) "
+        "or hard (goals 22-28 cm away); docs/EVALUATION.md",
     )
     p.add_argument(
-        "--max-actions", type=_positive_int, metavar="N", help=f"action budget per task (default {PAPER_BUDGET})"
+        "--max-actions",
+        type=_positive_int,
+        metavar="N",
+        help="action budget per task (default: the task's)",
     )
     p.add_argument(
         "--candidates",
@@ -137,6 +137,17 @@ def moved_notes(args: argparse.Namespace) -> list[str]:
     ]
 
 
+def task_set(args: argparse.Namespace, scenes: bool) -> str:
+    """The task set --tasks names (paper where not given); refused beside scene files, which
+    state their own."""
+    from lmjx.errors import ConfigError
+
+    if scenes and args.tasks is not None:
+        raise ConfigError("--tasks chooses among the shipped scenarios; a scene file states its task set "
+                          "(task_set): leave out --tasks")  # fmt: skip
+    return args.tasks or "paper"
+
+
 def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
     """The planner's simulator for --sim, announced on stderr."""
     from lmjx.evaluation.trial import resolve_simulator
@@ -150,7 +161,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "plan",
         help="one manipulation task with simulation in the loop (paper Algorithm 3)",
-        description="Push the target cube of a scenario into its goal region with the edges of a map, choosing "
+        description="Push the target cube of a scenario (--scenario N: the paper's; --scene FILE: a scene file, "
+        "docs/SCENES.md) into its goal region with the edges of a map, choosing "
         "each action by an action selection mechanism and executing it in a simulated 'real' world whose physics "
         "differ from the planner's.  Planning time is wall clock less compiling on first use (printed apart); "
         "robot time is the simulated time the arm spends executing the actions.  The planning limit counts "
@@ -160,7 +172,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         epilog=LEVERS_EPILOG,
     )
     p.add_argument("--map", required=True, metavar="FILE", help="a map file from lmjx build-map")
-    p.add_argument("--scenario", required=True, type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--scenario", type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
+    which.add_argument(
+        "--scene", metavar="FILE", help="a scene file (TOML, docs/SCENES.md): your own table, objects and goal"
+    )
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", metavar="SPEC", help="refuse the map unless it was built for this failure")
     _add_robot(p, from_map=True)
@@ -184,15 +200,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if line is not None:
             print(f"lmjx plan: {line}", file=sys.stderr)
 
+    tasks = task_set(args, args.scene is not None)
     r = plan_task(
-        args.map, args.scenario, asm=args.asm, seed=args.seed, tasks=args.tasks, sim=args.sim,
+        args.map, args.scene if args.scene is not None else args.scenario, asm=args.asm, seed=args.seed, tasks=tasks,
+        sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=say, planner=planner_levers(args),
     )  # fmt: skip
     say()
     res, summary = r.trial, r.summary()
     lines = [
-        f"failure {r.failure}, scenario {args.scenario} ({args.tasks} tasks), {args.asm}, seed {args.seed}: "
+        f"failure {r.failure}, {r.task} ({r.tasks} tasks), {args.asm}, seed {args.seed}: "
         f"{'success' if res.success else 'failure'} ({res.reason}) after {res.actions} actions",
         f"  planning {res.planning_s:.1f} s (wall clock), robot time {res.execution_s:.1f} s (simulated execution), "
         f"target {res.final_distance * 100:.1f} cm from the goal's centre",

@@ -1,5 +1,6 @@
 """`lmjx scenarios`: each evaluation scenario's description and picture (a MuJoCo rendering
-beside a top-down diagram; the diagram alone where there is no OpenGL)."""
+beside a top-down diagram; the diagram alone where there is no OpenGL); `--check FILE`: a
+scene file checked (its keys and geometry; with --map, the goal against the map)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ gl_note: str | None = None
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "scenarios",
-        help="pictures and descriptions of the three evaluation scenarios",
+        help="pictures and descriptions of the three evaluation scenarios; --check a scene file",
         description="Print each scenario's description and write <out>/scenario<N>.png: a MuJoCo rendering of the "
         "scene (the arm at its park pose for case2, or for no failure if the robot has no case2) beside a top-down "
         "diagram of the layout; the scenarios sit where they do for the Panda, scaled to the robot's size.  "
@@ -23,6 +24,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "only the diagram is drawn.",
     )
     p.add_argument("--out", default=".", help="folder for the pictures (default: the current folder)")
+    p.add_argument(
+        "--check",
+        metavar="FILE",
+        help="check a scene file instead (TOML, docs/SCENES.md): its keys, its objects apart, on the table and clear "
+        "of the arm's base, and with --map the goal where the map reaches; draws nothing",
+    )
+    p.add_argument("--map", metavar="FILE", help="with --check: the map whose reach the goal must lie in")
+    p.add_argument("--json", action="store_true", help="with --check: print a JSON summary on stdout")
     p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
     p.add_argument("--tasks", choices=("paper", "hard"), default="paper", help="the task set (default paper)")
     _add_robot(p)
@@ -30,7 +39,46 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    """`--check FILE`: the scene's summary, or a one-line error."""
+    from lmjx.cli.common import _emit
+    from lmjx.mapfile.read import load_map
+    from lmjx.sim.scenefile import load_scene
+
+    m = load_map(args.map, _load_robot(args) if args.robot else None) if args.map else None
+    robot = m.robot if m is not None else _load_robot(args)
+    task = load_scene(args.check, robot, m)
+    sc = task.scenario
+    checked = "objects apart, on the table, clear of the arm's base" + (f"; goal reached on {args.map}" if m else "")
+    summary = {
+        "scene": args.check,
+        "name": task.name,
+        "robot": task.robot,
+        "task_set": sc.tasks,
+        "number": sc.number,
+        "movable": len(sc.movable),
+        "fixed": len(sc.fixed),
+        "goal_center": list(sc.goal_center),
+        "goal_size": [2 * h for h in sc.goal_half],
+        "budget": sc.budget,
+        "map": args.map,
+    }
+    lines = [
+        f"{args.check}: ok ({task.name}: the target, {len(sc.obstacles)} movable boxes, {len(sc.fixed)} fixed "
+        f"obstacle{'' if len(sc.fixed) == 1 else 's'}, a budget of {sc.budget} actions, placed for {task.robot})",
+        f"  checked: {checked}" + ("" if m else "; give --map to check the goal against a map"),
+    ]
+    _emit(args, summary, lines)
+    return 0
+
+
 def cmd_scenarios(args: argparse.Namespace) -> int:
+    if args.check is not None:
+        return cmd_check(args)
+    if args.map is not None or args.json:
+        from lmjx.errors import ConfigError
+
+        raise ConfigError("--map and --json go with --check FILE")
     import sys
     from pathlib import Path
 

@@ -32,7 +32,7 @@ from lmjx.planner.transit import TransitPlanner
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
 from lmjx.runtime.progress import Progress
-from lmjx.sim.scenarios import TASK_SETS, resolve_task, scenario
+from lmjx.sim.scenarios import TASK_SETS, Task, resolve_task, scenario
 from lmjx.types import ASMS, PlannerConfig
 
 ASM_COLORS = {"random": "#0072B2", "lazy": "#E69F00", "greedy": "#009E73"}  # the same in every panel
@@ -56,18 +56,25 @@ class EvalConfig:
     seed: int = 0
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     backend: str = "cpu"
-    tasks: str = "paper"  # the task set (lmjx.sim.scenarios.TASK_SETS)
+    tasks: str = "paper"  # the task set (lmjx.sim.scenarios.TASK_SETS; with scenes: theirs, joined by "+")
     part: tuple[int, int] = (1, 1)  # (K, N): only trials t with t % N == K - 1 (a run split in N parts)
+    # tasks from scene files (`lmjx evaluate --scenes`), resolved for the robot, numbered as
+    # `scenarios` lists them; empty: the shipped scenarios `scenarios` of the task set `tasks`
+    scenes: tuple[Task, ...] = ()
 
     def validate(self) -> None:
         for a in self.asms:
             if a not in ASMS:
                 raise ConfigError(f"unknown ASM '{a}'; use random, lazy, greedy")
-        for s in self.scenarios:
-            if s not in (1, 2, 3):
-                raise ConfigError(f"unknown scenario {s}; the scenarios are 1, 2 and 3")
-        if self.tasks not in TASK_SETS:
-            raise ConfigError(f"unknown task set '{self.tasks}'; use paper or hard")
+        if self.scenes:
+            if tuple(t.number for t in self.scenes) != self.scenarios or len(set(self.scenarios)) < len(self.scenes):
+                raise ConfigError("the scenes need distinct numbers (a scene file's `number`), listed in scenarios")
+        else:
+            for s in self.scenarios:
+                if s not in (1, 2, 3):
+                    raise ConfigError(f"unknown scenario {s}; the scenarios are 1, 2 and 3")
+            if self.tasks not in TASK_SETS:
+                raise ConfigError(f"unknown task set '{self.tasks}'; use paper or hard")
         if self.trials < 1:
             raise ConfigError("--trials must be at least 1")
         k, n = self.part
@@ -75,6 +82,14 @@ class EvalConfig:
             raise ConfigError(f"--part {k}/{n}: K/N needs 1 <= K <= N (e.g. 2/4: the second of four parts)")
         if k > self.trials:
             raise ConfigError(f"--part {k}/{n} holds no trial of {self.trials} per cell (its first is trial {k})")
+
+    def task(self, number: int, robot: Robot) -> Task:
+        """The task of scenario `number`: the scene of that number, else the shipped scenario
+        of the task set, placed for `robot`."""
+        for t in self.scenes:
+            if t.number == number:
+                return t
+        return resolve_task(number, robot, self.tasks)
 
 
 def trial_seed(base: int, scenario: int, trial: int) -> int:
@@ -147,7 +162,7 @@ def evaluate(
     threads = usable_cores()
     for s in sorted({k[1] for k in todo}):
         group = [k for k in todo if k[1] == s]
-        task = resolve_task(s, robot, config.tasks)  # once per scenario: its trials share it and the simulator
+        task = config.task(s, robot)  # once per scenario: its trials share it and the simulator
         sim = (
             make_simulator(robot, task, config.backend, servo=config.planner.servo)
             if any(k[2] != "random" for k in group)
@@ -321,6 +336,8 @@ def _trials(n: int) -> str:
 
 
 def _budget(config: EvalConfig) -> int:
+    if config.scenes:
+        return config.planner.max_actions or config.scenes[0].budget
     return config.planner.max_actions or scenario(config.scenarios[0], tasks=config.tasks).budget
 
 

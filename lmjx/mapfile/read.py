@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -20,6 +21,9 @@ from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, SCHEMA_VERSION, attr_str,
 from lmjx.model.failure import Failure
 from lmjx.model.robot import ROBOTS, Robot, as_robot, load_robot
 from lmjx.reach.reachability import ReachConfig, ReachResult
+
+if TYPE_CHECKING:
+    from lmjx.mapfile.trajectory import Edge
 
 LAZY_BYTES = 512 * 2**20  # edge states larger than this are read on demand (load_map's default)
 CACHE_BYTES = 256 * 2**20  # HDF5 chunk cache per state dataset of a lazily opened map
@@ -57,6 +61,30 @@ class MapFile:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def edges_over(self, region: tuple[float, float, float, float]) -> np.ndarray:
+        """Ids (sorted) of the edges during which the whole arm can act on an object in the
+        axis-aligned rectangle `region` = (xmin, ymin, xmax, ymax) [m] of the table top (robot
+        base frame): the spatial index's edges of every reach cell whose square overlaps it."""
+        from lmjx.mapfile.trajectory import edges_in_region
+
+        return edges_in_region(self._bundle(), self.reach, region)
+
+    def edge(self, index: int) -> Edge:
+        """Edge `index`: its joint states q, qd (T, nq), time stamps t (T,) and the interaction
+        point's path p (T, 3) (`lmjx.mapfile.trajectory.Edge`)."""
+        from lmjx.mapfile.trajectory import read_edge
+
+        assert self.robot is not None
+        return read_edge(self._bundle(), index, self.robot.joint_names, self.robot.site_names, self)
+
+    def _bundle(self) -> Bundle:
+        if self.edges is None or self.reach is None:
+            extra = "" if self.robot is None or self.robot.key == "panda" else f" --robot {self.robot.key}"
+            raise MapFileError(
+                f"{self.path} has no edges; build it with: lmjx build-map{extra} --failure {self.failure.spec}"
+            )
+        return self.edges
 
     def close(self) -> None:
         if self.edges is not None:

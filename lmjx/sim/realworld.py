@@ -73,7 +73,7 @@ def real_physics(robot: Robot, n_objects: int, rng: np.random.Generator) -> Phys
     return Physics(
         friction_scale=tuple(rng.uniform(0.7, 1.3, n_objects)),
         mass_scale=tuple(rng.uniform(0.8, 1.25, n_objects)),
-        table_friction=0.5 * rng.uniform(0.8, 1.2),
+        table_friction_scale=float(rng.uniform(0.8, 1.2)),
         robot_radius_offset=float(rng.uniform(-0.003, 0.003)),
         servo_kp=kp,
         servo_kv=kv,
@@ -83,10 +83,15 @@ def real_physics(robot: Robot, n_objects: int, rng: np.random.Generator) -> Phys
 
 
 class SimulatedRealWorld:
-    """A perturbed MuJoCo world standing in for the real robot and objects."""
+    """A perturbed MuJoCo world standing in for the real robot and objects: the reference
+    implementation of `lmjx.types.Executor`.  Its physics are drawn from `seed` (module
+    docstring) at each `reset`; `settle`: seconds the objects are left to come to rest after
+    each action.  `robot`: a Robot, a shipped robot's name or an MJCF's path."""
 
-    def __init__(self, robot: Robot, seed: int, settle: float = 0.5) -> None:
-        self.robot = robot
+    def __init__(self, robot: Robot | str, seed: int, settle: float = 0.5) -> None:
+        from lmjx.model.robot import as_robot
+
+        self.robot = as_robot(robot)
         self.seed = seed
         self.settle = settle
         self.scene: Scene | None = None

@@ -21,12 +21,14 @@ their geometry and layouts):
     it back, the hard task, leaves an arm that never touches the tunnel 2-3 feasible actions
     on a 100,000-edge map; pushing it away, 16-20: docs/EVALUATION.md).
 The layouts are the Panda's; `scenario(n, scale)` scales every position on the table (and the
-tunnel's length) about the robot's base by the robot's `task_scale`, so that the same three
-scenarios sit at the same place in the reach of an arm of another size (objects keep their
-sizes).  `sample_layout` varies the movable objects' initial poses per trial (seeded): each is moved
-uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of its nominal pose,
-keeping objects apart.  `resolve_task` makes a scenario of a task set, placed for a robot, a
-`Task`: the value the entry points make once and every stage below them takes.  Nothing here
+tunnel's length) about the robot's base by the robot's `task_scale` (`placed`), so that the
+same three scenarios sit at the same place in the reach of an arm of another size (objects
+keep their sizes).  `sample_layout` varies the movable objects' initial poses per trial
+(seeded): each is moved uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of
+its nominal pose (the scenario's, or the object's own), keeping objects apart.  `resolve_task`
+makes a scenario of a task set, placed for a robot, a `Task`: the value the entry points make
+once and every stage below them takes; a scene file makes the same value
+(`lmjx.sim.scenefile`: the three scenarios of both task sets ship as files).  Nothing here
 simulates; `lmjx.sim.scene` builds the MuJoCo models.
 """
 
@@ -63,6 +65,11 @@ class Box:
     movable: bool = True
     rgba: tuple[float, float, float, float] = OBSTACLE_RGBA
     z: float | None = None  # centre height; default: resting on the table
+    # (the fields below are left out of the repr: it keys the push counts a map stores,
+    # `lmjx.planner.pushfield.counts_key`, which frictions and jitters do not change)
+    friction: float = field(default=0.5, repr=False)  # sliding friction (MuJoCo takes the larger of a pair's)
+    jitter: float | None = field(default=None, repr=False)  # [m] its own position jitter; None: the scenario's
+    yaw_jitter: float | None = field(default=None, repr=False)  # [rad] its own yaw jitter; None: the scenario's
 
     @property
     def zc(self) -> float:
@@ -83,6 +90,7 @@ class Scenario:
     yaw_jitter: float = 0.26  # [rad]
     tasks: str = "hard"  # the task set it belongs to
     budget: int = 30  # the task set's action budget (a planner's default max_actions)
+    table_friction: float = field(default=0.5, repr=False)  # sliding friction of the table top (out of the repr: Box's)
 
     @property
     def movable(self) -> tuple[Box, ...]:
@@ -228,6 +236,13 @@ def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
     sc = SCENARIOS[number]()
     if tasks == "paper":
         sc = paper_variant(sc, PAPER_TASKS[number], PAPER_BUDGET)
+    return placed(sc, scale)
+
+
+def placed(sc: Scenario, scale: float) -> Scenario:
+    """`sc` with its table positions (the objects', the goal's) scaled by `scale` about the
+    robot's base, and its fixed walls' lengths with them (their thickness kept); objects keep
+    their sizes.  `sc` itself where `scale` is 1."""
     if scale == 1.0:
         return sc
 
@@ -279,6 +294,10 @@ class Task:
         """The objects' initial poses for a trial seed (`sample_layout`)."""
         return sample_layout(self.scenario, seed)
 
+    def in_goal(self, xy: np.ndarray, margin: float = 0.0) -> bool:
+        """Whether a point (the target's centre) lies in the goal region, `margin` inside."""
+        return in_goal(self.scenario, xy, margin)
+
 
 def resolve_task(number: int, robot: Robot, tasks: str = "paper") -> Task:
     """Scenario `number` (1, 2, 3) of the task set `tasks` ("paper" or "hard"), placed for
@@ -306,17 +325,24 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def sample_layout(sc: Scenario, seed: int, tries: int = 200) -> Layout:
-    """Seeded initial poses: each movable object jittered around its nominal pose, without
-    overlaps (bounding circles) with the other objects and the fixed ones."""
+    """Seeded initial poses: each movable object jittered around its nominal pose (by its own
+    jitter where it has one, else the scenario's), without overlaps with the other objects and
+    the fixed ones; drawn again, up to `tries` times, until none overlap."""
     rng = np.random.default_rng(seed)
     boxes = sc.movable
+    # per object (the same draws as one scalar jitter for all: numpy broadcasts the bounds)
+    jit = np.array([sc.jitter if b.jitter is None else b.jitter for b in boxes])[:, None]
+    yaw_jit = np.array([sc.yaw_jitter if b.yaw_jitter is None else b.yaw_jitter for b in boxes])
     for _ in range(tries):
-        d = rng.uniform(-sc.jitter, sc.jitter, (len(boxes), 2))
-        yaw = rng.uniform(-sc.yaw_jitter, sc.yaw_jitter, len(boxes))
+        d = rng.uniform(-jit, jit, (len(boxes), 2))
+        yaw = rng.uniform(-yaw_jit, yaw_jit, len(boxes))
         poses = np.array([[b.x + dx, b.y + dy, b.yaw + w] for b, (dx, dy), w in zip(boxes, d, yaw, strict=True)])
         if _separated(boxes, poses, sc.fixed):
             return Layout(sc, seed, poses)
-    raise ConfigError(f"scenario {sc.number}: could not place the objects apart (seed {seed})")
+    raise ConfigError(
+        f"{sc.title}: could not place the objects apart in {tries} draws (seed {seed}); move them apart or lower "
+        "their jitter"
+    )
 
 
 def _separated(boxes: tuple[Box, ...], poses: np.ndarray, fixed: tuple[Box, ...], gap: float = 0.004) -> bool:

@@ -32,10 +32,11 @@ class Physics:
     """Physical parameters of one simulated world."""
 
     timestep: float = 0.005  # [s]
-    object_friction: float = 0.5  # sliding friction of the objects (MuJoCo takes the max of a pair)
-    table_friction: float = 0.5
     robot_friction: float = 0.8
+    # The objects' and the table's sliding frictions are the scenario's (`Box.friction`,
+    # `Scenario.table_friction`; MuJoCo takes the larger of a touching pair's), times these:
     friction_scale: tuple[float, ...] = ()  # per movable object; () = all 1
+    table_friction_scale: float = 1.0
     mass_scale: tuple[float, ...] = ()  # per movable object; () = all 1
     robot_radius_offset: float = 0.0  # added to every robot capsule radius [m]
     # Joint servos: tau = kp (q* - q) + kv (qd* - qd), clipped to +-servo_force; the
@@ -101,7 +102,7 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
     # itself (its trajectories are already free of self-collision); objects touch everything.
     for g in spec.geoms:
         if g.name == "table":
-            g.friction = [physics.table_friction, 0.005, 0.0001]
+            g.friction = [sc.table_friction * physics.table_friction_scale, 0.005, 0.0001]
             g.contype, g.conaffinity = TABLE_BITS[physics.robot_table_contacts]
         elif g.type == mujoco.mjtGeom.mjGEOM_CAPSULE:
             g.friction = [physics.robot_friction, 0.005, 0.0001]
@@ -145,7 +146,7 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
             size=list(b.half),
             rgba=list(b.rgba),
             mass=b.mass * ms[k],
-            friction=[physics.object_friction * fs[k], 0.005, 0.0001],
+            friction=[b.friction * fs[k], 0.005, 0.0001],
             condim=3,
             contype=OBJECT_BITS[0],
             conaffinity=OBJECT_BITS[1],
@@ -158,7 +159,7 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
             pos=[b.x, b.y, b.zc],
             quat=list(yaw_quat(b.yaw)),
             rgba=list(b.rgba),
-            friction=[physics.object_friction, 0.005, 0.0001],
+            friction=[b.friction, 0.005, 0.0001],
             contype=STATIC_BITS[0],
             conaffinity=STATIC_BITS[1],
         )
