@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from lmjx import checks
 from lmjx.errors import ConfigError
 from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.failure import Failure, as_failure
@@ -71,6 +72,7 @@ class MapBuild:
     seed: int
     edges: dict[str, Any]  # the edge bundle's figures: edges_sampled, edges_valid, rejected, seconds, ...
     reach: dict[str, Any] = field(default_factory=dict)  # the reach map's: cell_m, area_m2, ... ({} on processes > 0)
+    built: bool = True  # False: `path` already held this map, which was kept (its figures are those of its build)
 
     def __repr__(self) -> str:
         e = self.edges
@@ -78,9 +80,10 @@ class MapBuild:
         if self.reach:
             a = self.reach["area_m2"]
             areas = f"PM {a['pm']:.3f} m^2, NPM+PM {a['npm_pm']:.3f} m^2; "
+        kept = "" if self.built else "; already there, kept"
         return (
             f"MapBuild({str(self.path)!r}: {self.robot.key}, failure {self.failure.spec!r}; {areas}"
-            f"{e['edges_valid']:,} edges kept of {e['edges_sampled']:,} sampled; on {e['device']})"
+            f"{e['edges_valid']:,} edges kept of {e['edges_sampled']:,} sampled; on {e['device']}{kept})"
         )
 
     def summary(self) -> dict[str, Any]:
@@ -93,6 +96,7 @@ class MapBuild:
             "failure": self.failure.spec,
             "out": str(self.path),
             "seed": self.seed,
+            "built": self.built,  # false: the map was already there, kept
             # compiling, or loading compiled programs from the cache: each program once
             "compile_seconds": round(sum(stages.values()), 4),
             "compile_seconds_by_stage": stages,
@@ -103,8 +107,8 @@ class MapBuild:
             "bytes_per_state": round(s.get("bytes_per_state", 0.0), 2),
             "raw_bytes_per_state": round(s.get("raw_bytes_per_state", 0.0), 2),
             "device": s["device"],
-            "devices": s["devices"],
-            "processes": s["processes"],
+            "devices": s.get("devices"),
+            "processes": s.get("processes"),
         }
 
     def load(self, lazy: bool | None = None) -> MapFile:
@@ -126,15 +130,19 @@ def build_map(
     progress: bool = False,
     say: Any = None,
     compile_presets: bool | None = None,
+    overwrite: bool = False,
 ) -> MapBuild:
     """Build a failure's map file, as `lmjx build-map` does: the Reach-Ability map (cells of
     `cell` metres), then `edges` sampled edges (default: 10,000 on a CPU, 100,000 on a GPU;
     only valid ones are kept), written to `out` (default maps/<failure>.h5, another robot's
     maps/<robot>/<failure>.h5; schema: maps/README.md).  The same seed gives the same map.
     An interrupted build leaves its finished chunks in `<out>.partial`, and the same call
-    continues it.  `robot`: a Robot, a shipped robot's name or an MJCF's path (default the
-    Panda); `device`: see `use_device`; `chunk`: edges computed at a time (not part of the
-    result); `yes`: start even when the preflight estimates more than a day of work;
+    continues it.  A map already at `out` built with the same robot, failure, parameters and
+    seed is kept (nothing is computed; the result's `built` is False); any other file there
+    is replaced only with `overwrite` (else OutputPathError).  `robot`: a Robot, a shipped
+    robot's name or an MJCF's path (default the Panda); `device`: see `use_device`;
+    `chunk`: edges computed at a time (not part of the result); `yes`: start even when the
+    preflight estimates more than a day of work;
     `say`: where the preflight's lines go (default: nowhere); `progress`: bars on stderr;
     `compile_presets`: also compile the programs of the robot's other preset failures for
     later builds on this machine, where the cache lacks them (None: on accelerators only).
@@ -151,6 +159,12 @@ def build_map(
     from lmjx.edges.stream import build_map as stream_map
     from lmjx.reach.reachability import reach_config
 
+    seed = checks.seed(seed)
+    cell = checks.finite_number(cell, "cell", above=0.0)
+    if edges is not None:
+        checks.whole_number(edges, "edges", 1)
+    if chunk is not None:
+        checks.whole_number(chunk, "chunk", 1)
     use_device(device)
     import jax
 
@@ -161,14 +175,17 @@ def build_map(
     path = Path(out) if out is not None else default_map_path(failure, robot)
     s = stream_map(
         path, failure, reach_cfg, bundle_cfg, robot, progress=progress, sharded=sharded, yes=yes,
-        say=say or (lambda line: None), compile_presets=compile_presets,
+        say=say or (lambda line: None), compile_presets=compile_presets, overwrite=overwrite,
     )  # fmt: skip
-    result = MapBuild(path, robot, failure, seed, dict(s))
+    kept = bool(s.get("kept"))
+    result = MapBuild(path, robot, failure, seed, dict(s), built=not kept)
     if jax.process_index() == 0:
         with load_map(path, robot, lazy=True) as m:
-            assert m.reach is not None
+            assert m.reach is not None and m.edges is not None
             rs = m.reach.summary()
             result.reach = {k: rs[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")}
+            if kept:  # the figures of the build that wrote it
+                result.edges = m.edges.summary() | {"bytes_per_state": float(m.edges_attrs.get("bytes_per_state", 0.0))}
     return result
 
 
@@ -310,9 +327,10 @@ def plan_task(
         raise ConfigError(f"unknown action selection mechanism '{asm}'; use {', '.join(ASMS)}")
     if sim not in SIMULATORS:
         raise ConfigError(f"unknown simulator '{sim}'; use {', '.join(SIMULATORS)}")
+    seed = checks.seed(seed)
     for name, value in (("max_actions", max_actions), ("candidates", candidates)):
-        if value is not None and value < 1:
-            raise ConfigError(f"{name} must be at least 1, got {value}")
+        if value is not None:
+            checks.whole_number(value, name, 1)
     levers = planner if isinstance(planner, Mapping) else read_levers(planner) if planner is not None else {}
     given = {"asm_settings": asm_settings, "when_stuck": when_stuck, "late_start": late_start,
              "push_weight": push_weight, "rescore_top": rescore_top, "rescore_draws": rescore_draws, "servo": servo,

@@ -139,7 +139,8 @@ def test_killed_build_resumes_to_the_same_file(tiny_map, tmp_path):
     r = cli(*args)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
     assert "was damaged" in r.stderr.strip().splitlines()[-1] and "rerun the same command" in r.stderr
-    assert not kept[1].exists() and not out.exists()
+    assert f"kept {partial}: run the same command to resume, or remove it" in r.stderr  # a failed build's chunks
+    assert not kept[1].exists() and not out.exists() and not list(partial.glob("*.tmp"))
     assert "resuming the build kept in" in cli(*args).ok().stderr  # the resumed run says so
     assert same_datasets(tiny_map, out) == []
     assert attributes(tiny_map) == attributes(out)

@@ -271,12 +271,7 @@ def run_bench(args: argparse.Namespace) -> int:
     if args.out:
         check_writable(args.out, "benchmark results")
     if args.sizes:
-        try:
-            sizes = [int(s) for s in args.sizes.split(",")]
-        except ValueError:
-            raise ConfigError(f"--sizes must be whole numbers separated by commas, got '{args.sizes}'") from None
-        if any(s < 1 for s in sizes):
-            raise ConfigError("--sizes must be positive")
+        sizes = list(args.sizes)  # checked by the command's parser
     elif args.quick:
         sizes = [2048]
     else:
@@ -323,12 +318,7 @@ def run_bench(args: argparse.Namespace) -> int:
         sim_name, why = resolve_simulator(args.sim)
         print(f"lmjx bench: simulator {sim_name} ({why})", file=sys.stderr)
         if args.candidates:
-            try:
-                counts = sorted({int(c) for c in args.candidates.split(",")})
-            except ValueError:
-                raise ConfigError(f"--candidates takes counts such as 256,1024, got '{args.candidates}'") from None
-            if not counts or counts[0] < 1:
-                raise ConfigError(f"--candidates must be positive, got '{args.candidates}'")
+            counts = sorted(set(args.candidates))  # checked by the command's parser
         else:
             counts = [8] if args.quick else ([256, 1024, 4096] if sim_name == "gpu" else [256])
         planner_map = args.planner_map or f"{robot.maps_dir}/{bench_failure(robot)}.h5"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from lmjx.cli.common import _add_device, _add_robot, _positive_int, check_suffix
+from lmjx.cli.common import _add_device, _add_robot, _positive_int, _positive_ints, check_suffix
 from lmjx.cli.plan import _add_sim
 
 
@@ -19,7 +19,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--quick", action="store_true", help="small sizes that finish in about a minute on a CPU")
     _add_robot(p)
-    p.add_argument("--sizes", help="comma-separated IK batch sizes (default: by device and --quick)")
+    p.add_argument(
+        "--sizes", type=_positive_ints, help="comma-separated IK batch sizes (default: by device and --quick)"
+    )
     p.add_argument("--repeats", type=_positive_int, default=3, help="timed repetitions per figure; the median is kept")
     p.add_argument(
         "--sections",
@@ -39,6 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--candidates",
+        type=_positive_ints,
         help="planner section: candidate counts to score, comma separated (default 256,1024,4096 with a GPU "
         "simulator, 256 without; 8 with --quick)",
     )

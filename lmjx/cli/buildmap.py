@@ -8,8 +8,10 @@ import sys
 
 from lmjx.cli.common import (
     HDF5_SUFFIXES,
+    SEED_RANGE,
     _add_device,
     _add_distributed,
+    _add_overwrite,
     _add_robot,
     _emit,
     _failure_help,
@@ -18,6 +20,7 @@ from lmjx.cli.common import (
     _load_robot,
     _positive_float,
     _positive_int,
+    _seed,
     check_suffix,
 )
 
@@ -33,7 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "spatial index per cell (schema: maps/README.md).  Any number of edges: they are computed and saved in "
         "chunks (bounded memory) into <out>.partial, and the map is assembled from them at the end; a preflight "
         "first says how large and how long; an interrupted build (Ctrl-C, a kill) continues when the same command "
-        "runs again.  Every local accelerator shares the work; several hosts: the same command on each with "
+        "runs again, and a failed one keeps <out>.partial only where it holds computed edges (and says so).  A "
+        "map already at --out that this command built (the same robot, failure, parameters and seed) is kept, "
+        "and the command exits 0 at once; any other file there is replaced only with --overwrite.  Every local "
+        "accelerator shares the work; several hosts: the same command on each with "
         "--coordinator HOST:PORT --num-processes N --process-id I.",
     )
     p.add_argument("--failure", required=True, help=_failure_help())
@@ -47,7 +53,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--out", help="map file to write (.h5; default maps/<failure>.h5; another robot's: maps/<robot>/<failure>.h5)"
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed for the map and the edges (default 0)")
+    _add_overwrite(p, "a map or another file")
+    p.add_argument("--seed", type=_seed, default=0, help=f"random seed for the map and the edges, {SEED_RANGE} "
+                   "(default 0)")  # fmt: skip
     p.add_argument("--cell", type=_positive_float, default=0.02, help="reach cell edge in metres (default 0.02)")
     p.add_argument(
         "--chunk",
@@ -87,7 +95,7 @@ def cmd_build_map(args: argparse.Namespace) -> int:
         b = build_map(
             failure, robot, out=out, edges=args.edges, seed=args.seed, cell=args.cell, chunk=args.chunk,
             sharded=not args.no_shard, yes=args.yes, progress=True, say=lambda line: print(line, file=sys.stderr),
-            compile_presets=args.compile_presets,
+            compile_presets=args.compile_presets, overwrite=args.overwrite,
         )  # fmt: skip
     except InterruptedAfterMap:
         _leave_interrupted(
@@ -95,11 +103,23 @@ def cmd_build_map(args: argparse.Namespace) -> int:
             "yet compile when they are built"
         )
     except KeyboardInterrupt:
-        _leave_interrupted(
-            f"lmjx build-map: interrupted; nothing was written to {out}; the chunks done are kept in "
-            f"{partial_path(out)}: rerun the same command to continue (it resumes where this one stopped)"
+        partial = partial_path(out)
+        kept = (
+            f"what was computed is kept in {partial}: rerun the same command to continue (it resumes where this one "
+            "stopped), or remove it"
+            if partial.exists()
+            else "nothing was computed that a rerun could use"
         )
+        _leave_interrupted(f"lmjx build-map: interrupted; nothing was written to {out}; {kept}")
     if jax.process_index() != 0:
+        return 0
+    if not b.built:
+        e = b.edges
+        _emit(args, b.summary(), [
+            f"{out} already holds this map (the same robot, failure, parameters and seed; {e['edges_valid']:,} valid "
+            f"edges of {e['edges_sampled']:,}, built on {e['device']}): kept, nothing computed; --overwrite builds "
+            "it again"
+        ])  # fmt: skip
         return 0
     summary, s, area = b.summary(), b.edges, b.reach["area_m2"]
     rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items() if v)

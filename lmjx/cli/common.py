@@ -17,7 +17,12 @@ if TYPE_CHECKING:
     from lmjx.model.robot import Robot
     from lmjx.reach.reachability import ReachConfig
 
+# Exit statuses (docs/DETAILS.md, "Exit status"): 0 done; 1 `info --verify` found a damaged
+# map; 2 bad input (one line on stderr, nothing written); 3 `plan --strict`: the task failed;
+# 130 interrupted.
+EXIT_DAMAGED = 1
 EXIT_USAGE = 2
+EXIT_TASK_FAILED = 3
 EXIT_INTERRUPTED = 130
 
 # What matplotlib writes, by file extension (the format follows the extension).
@@ -42,13 +47,18 @@ def _positive_float(text: str) -> float:
     return v
 
 
-def _whole_number(text: str, low: int) -> int:
+INT_MAX = 2**31 - 1  # the largest count any option takes (counts are held in 32-bit integers)
+
+
+def _whole_number(text: str, low: int, high: int = INT_MAX) -> int:
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
     if v < low:
         raise argparse.ArgumentTypeError(f"must be at least {low}, got {text}")
+    if v > high:
+        raise argparse.ArgumentTypeError(f"must be at most {high}, got {text}")
     return v
 
 
@@ -58,6 +68,43 @@ def _positive_int(text: str) -> int:
 
 def _nonnegative_int(text: str) -> int:
     return _whole_number(text, 0)
+
+
+def _seed(text: str) -> int:
+    """A seed: a whole number from 0 to `lmjx.checks.SEED_MAX`."""
+    from lmjx.checks import SEED_MAX
+
+    return _whole_number(text, 0, SEED_MAX)
+
+
+def _positive_ints(text: str) -> tuple[int, ...]:
+    """A comma-separated list of whole numbers, each at least 1 (at least one of them)."""
+    values = tuple(_positive_int(x.strip()) for x in text.split(",") if x.strip())
+    if not values:
+        raise argparse.ArgumentTypeError(f"give whole numbers separated by commas, got '{text}'")
+    return values
+
+
+SEED_RANGE = "0 to 4294967295"  # (lmjx.checks.SEED_MAX)
+SEED_HELP = f"random seed, {SEED_RANGE}"
+OVERWRITE_RULE = (
+    "lmjx never replaces a map file (or a robot's MJCF) already at --out unless --overwrite is given; pictures, "
+    "reports and JSON results it writes over"
+)
+
+
+def _add_overwrite(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--overwrite", action="store_true", help=f"replace {what} already at --out ({OVERWRITE_RULE})")
+
+
+def check_not_there(path: str | Path, overwrite: bool, what: str) -> None:
+    """Refuse, in one line naming --overwrite, to write over a file a user may want to keep."""
+    from lmjx.errors import OutputPathError
+
+    p = Path(path)
+    if p.exists() and not p.is_dir() and not overwrite:
+        raise OutputPathError(f"--out {p} already exists; add --overwrite to replace it with the new {what}, or "
+                              "choose another --out")  # fmt: skip
 
 
 CACHE_DIR_HELP = (
@@ -121,21 +168,25 @@ def _add_reach_options(p: argparse.ArgumentParser) -> None:
         help="interaction points (the robot's ip_<name> sites) cycled by NPM attempts, comma separated (default "
         "hand,wrist,forearm; lmjx robots lists each robot's)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same map (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help=f"{SEED_HELP}; the same seed gives the same map (default 0)")
 
 
 def _add_distributed(p: argparse.ArgumentParser) -> None:
     p.add_argument("--coordinator", help="multi-process runs: address HOST:PORT of process 0")
     p.add_argument("--num-processes", type=_positive_int, default=1, help="multi-process runs: how many (default 1)")
-    p.add_argument("--process-id", type=int, default=0, help="multi-process runs: this process's rank (default 0)")
+    p.add_argument(
+        "--process-id", type=_nonnegative_int, default=0, help="multi-process runs: this process's rank (default 0)"
+    )
 
 
 def _init_distributed(args: argparse.Namespace) -> None:
     """jax.distributed for --coordinator/--num-processes, before JAX starts."""
+    from lmjx.errors import ConfigError
+
+    if args.process_id >= args.num_processes:
+        raise ConfigError(f"--process-id {args.process_id}: ranks are 0 to {args.num_processes - 1} (--num-processes)")
     if args.coordinator or args.num_processes > 1:
         if not args.coordinator:
-            from lmjx.errors import ConfigError
-
             raise ConfigError("--num-processes > 1 needs --coordinator HOST:PORT")
         from lmjx.runtime.sharding import init_distributed
 

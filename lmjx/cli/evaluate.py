@@ -7,8 +7,31 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int
+from lmjx.cli.common import _add_device, _add_robot, _emit, _leave_interrupted, _load_robot, _positive_int, _seed
 from lmjx.cli.plan import LEVERS_EPILOG, _add_planner_options, moved_notes, planner_levers, task_set
+
+# Trials per cell: a trial's seed holds its number below 1000 (`evaluation.evaluate.trial_seed`),
+# so that no two trials share a seed.
+MAX_TRIALS = 1000
+
+
+def _trials(text: str) -> int:
+    v = _positive_int(text)
+    if v > MAX_TRIALS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_TRIALS}, got {text}")
+    return v
+
+
+def _base_seed(text: str) -> int:
+    """The trials' base seed: every trial's seed (`trial_seed`) must be a seed `lmjx plan --seed` takes."""
+    from lmjx.checks import SEED_MAX
+    from lmjx.evaluation.evaluate import trial_seed
+
+    v = _seed(text)
+    most = (SEED_MAX - trial_seed(0, 3, MAX_TRIALS - 1)) // trial_seed(1, 0, 0)
+    if v > most:
+        raise argparse.ArgumentTypeError(f"must be at most {most} (the trials' seeds stay below 2**32), got {text}")
+    return v
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -34,9 +57,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--asms", default="random,lazy,greedy", metavar="LIST", help="comma separated (default random,lazy,greedy)"
     )
-    p.add_argument("--trials", type=_positive_int, default=15, metavar="N", help="trials per cell (default 15)")
+    p.add_argument(
+        "--trials", type=_trials, default=15, metavar="N", help=f"trials per cell, 1 to {MAX_TRIALS} (default 15)"
+    )
     p.add_argument("--maps", metavar="DIR", help="folder of <failure>.h5 maps (default maps/ or maps/<robot>)")
-    p.add_argument("--seed", type=int, default=0, help="base seed of the trials (default 0)")
+    p.add_argument("--seed", type=_base_seed, default=0, help="base seed of the trials, 0 to 42949 (default 0)")
     p.add_argument(
         "--part",
         metavar="K/N",
@@ -99,7 +124,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from lmjx.errors import ConfigError
+    from lmjx.errors import ConfigError, LmjxError
     from lmjx.evaluation.evaluate import (
         EvalConfig,
         evaluate,
@@ -143,15 +168,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         task = config.task(s, robot)
         for m in maps.values():
             check_goal(task, m.reach, f"{task.name} on {m.path}")
-    check_writable(out / "results.json", "results")
     simulates = bool(set(config.asms) - {"random"})
     sim_name, why = resolve_simulator(args.sim) if simulates else ("cpu", "random does not simulate")
     config = replace(config, planner=planner_config("greedy", sim_name, levers), backend=sim_name)
-    opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed)  # a refusal: one line
-    if simulates:
-        print(f"lmjx evaluate: simulator {sim_name} ({why})", file=sys.stderr)
+    made = not out.exists()  # --out is made here, once everything is checked
+    check_writable(out / "results.json", "results")
     try:
+        opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed)  # a refusal: one line
+        if simulates:
+            print(f"lmjx evaluate: simulator {sim_name} ({why})", file=sys.stderr)
         results = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr), opened=opened)
+    except LmjxError:
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # no folder left empty by a refusal
+        raise
     except KeyboardInterrupt:
         _leave_interrupted(
             f"lmjx evaluate: interrupted; the trials finished are kept in {out}/results.json: rerun the same "

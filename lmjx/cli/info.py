@@ -1,21 +1,32 @@
 """`lmjx info`: validate a map file and describe what is in it (the states stay in the
-file: a map of any size answers at once)."""
+file: a map of any size answers at once); with --verify, first read the whole file and
+check every chunk's checksum and the arrays against each other (`lmjx.mapfile.verify`)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-from lmjx.cli.common import _add_robot, _emit, _load_robot
+from lmjx.cli.common import EXIT_DAMAGED, _add_robot, _emit, _load_robot
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "info",
         help="what is in a map file",
-        description="Validate a map file and describe its contents.",
+        description="Validate a map file and describe its contents.  Without --verify only what the description "
+        "needs is read (not the edges' states); --verify reads every chunk of every dataset, checks its checksum "
+        "(HDF5's Fletcher-32) and the arrays against each other, prints one line per problem on stderr and exits "
+        "with status 1 when it finds any (2: not a map file at all).",
     )
     p.add_argument("path", help="an lmjx map file (.h5)")
     _add_robot(p, from_map=True)
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="read and check the whole file first: every chunk's checksum, the offsets, lengths and index ranges; "
+        "exit status 1 if anything is damaged",
+    )
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.set_defaults(run=cmd_info)
     return p
@@ -24,6 +35,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def cmd_info(args: argparse.Namespace) -> int:
     from lmjx.mapfile.read import load_map
 
+    verified = None
+    if args.verify:
+        from lmjx.mapfile.verify import verify_map
+
+        verified = verify_map(args.path)
+        if verified.problems:
+            for problem in verified.problems:
+                print(f"lmjx info: {args.path}: {problem}", file=sys.stderr)
+            return EXIT_DAMAGED
     robot = _load_robot(args) if args.robot else None  # None: the robot the map names
     m = load_map(args.path, robot, lazy=True)
     assert m.robot is not None
@@ -67,5 +87,15 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"    {info['edges']['bytes_per_state']:.1f} bytes per stored state; spatial index over "
             f"{int((b.index_offset[1:] > b.index_offset[:-1]).sum())} cells",
         ]
+    if verified is not None:
+        info["verified"] = verified.summary()
+        missing = f"; {len(verified.unchecked)} chunked datasets have no checksum (a map of an earlier lmjx)"
+        lines.append(
+            f"  verified: {verified.datasets} datasets read, {verified.chunks:,} chunks "
+            f"({verified.stored_bytes / 1e6:.1f} MB) decoded, the checksums of {verified.checksummed} datasets "
+            "and the arrays' consistency checked" + (missing if verified.unchecked else "")
+        )
+    else:
+        lines.append("  (lmjx info --verify reads every chunk and checks its checksum)")
     _emit(args, info, lines)
     return 0

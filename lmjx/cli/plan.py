@@ -10,7 +10,17 @@ import argparse
 import sys
 from typing import Any
 
-from lmjx.cli.common import _add_device, _add_robot, _emit, _load_robot, _nonnegative_int, _positive_int
+from lmjx.cli.common import (
+    EXIT_TASK_FAILED,
+    SEED_RANGE,
+    _add_device,
+    _add_robot,
+    _emit,
+    _load_robot,
+    _nonnegative_int,
+    _positive_int,
+    _seed,
+)
 
 
 def _nonnegative_float(text: str) -> float:
@@ -180,10 +190,21 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", metavar="SPEC", help="refuse the map unless it was built for this failure")
     _add_robot(p, from_map=True)
-    p.add_argument("--seed", type=int, default=0, help="trial seed: layout, 'real' world, planner choices (default 0)")
+    p.add_argument(
+        "--seed",
+        type=_seed,
+        default=0,
+        help=f"trial seed, {SEED_RANGE}: layout, 'real' world, planner choices (default 0)",
+    )
     _add_planner_options(p)
     p.add_argument("--render", metavar="FILE", help="write a rendering of the trial: .png (frames), .gif or .mp4")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help=f"exit with status {EXIT_TASK_FAILED} when the task fails (the target does not end in the goal region); "
+        "without it the exit status is 0 whenever the task ran",
+    )
     _add_device(p)
     p.set_defaults(run=cmd_plan)
     return p
@@ -222,4 +243,4 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.render:
         lines.append(f"  rendering written to {args.render}")
     _emit(args, summary, lines)
-    return 0
+    return EXIT_TASK_FAILED if args.strict and not res.success else 0

@@ -8,12 +8,14 @@ import argparse
 from lmjx.cli.common import (
     HDF5_SUFFIXES,
     _add_device,
+    _add_overwrite,
     _add_reach_options,
     _add_robot,
     _emit,
     _failure_help,
     _load_robot,
     _reach_config,
+    check_not_there,
     check_suffix,
     figure_format,
 )
@@ -32,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     _add_robot(p)
     _add_reach_options(p)
     p.add_argument("--out", help="write the map to this HDF5 file (.h5; schema in maps/README.md)")
+    _add_overwrite(p, "a file")
     p.add_argument(
         "--png", help="write a heatmap (raw and smoothed) to this file; the format from its extension (.png, .pdf, "
         ".svg, .jpg, ...)"
@@ -52,6 +55,7 @@ def cmd_reach(args: argparse.Namespace) -> int:
     config.validate(robot)
     if args.out:
         check_suffix(args.out, "--out", HDF5_SUFFIXES, "the map is written as HDF5")
+        check_not_there(args.out, args.overwrite, "reach map")
         check_writable(args.out, "map file")
     if args.png:
         fmt = figure_format(args.png, "--png")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from lmjx.cli.common import EXIT_USAGE, _emit
+from lmjx.cli.common import EXIT_USAGE, _add_overwrite, _emit, _positive_float, check_not_there
 
 
 def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -20,6 +20,7 @@ def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     c.add_argument("src", help="the URDF (.urdf) or MJCF (.xml); package:// mesh paths resolve from its folder up")
     c.add_argument("--out", required=True, help="the MJCF to write (.xml)")
+    _add_overwrite(c, "an MJCF")
     c.add_argument("--tcp", help="LINK[:x,y,z]: the grasp point, in LINK's frame (default: the last arm link, 0,0,0)")
     c.add_argument("--flange", help="LINK: the tool flange's frame (default: the last arm link's)")
     c.add_argument("--qd-max", help="velocity limit(s) [rad/s]: one value, or one per arm joint comma-separated "
@@ -27,7 +28,7 @@ def add_parser(rsub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c.add_argument("--qdd-max", help="acceleration limit(s) [rad/s^2], one value or one per joint (required: "
                    "URDFs carry none)")  # fmt: skip
     c.add_argument("--tau-max", help="torque limit(s) [Nm], one value or one per joint (default: the source's effort)")
-    c.add_argument("--limit", type=float, help="V: the range +-V rad of every continuous (unlimited) joint")
+    c.add_argument("--limit", type=_positive_float, help="V: the range +-V rad of every continuous (unlimited) joint")
     c.add_argument("--ready", help="q1,...,qn: the park pose (lmjx_ready) [rad]; default: lmjx chooses one")
     c.add_argument("--ip", action="append", default=[], metavar="NAME=LINK:x,y,z[:r]",
                    help="place (or move) the interaction point ip_NAME; repeatable")  # fmt: skip
@@ -53,6 +54,7 @@ def cmd_robot_import(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".xml":
         raise ConfigError(f"--out {out}: an MJCF is written to a .xml file")
+    check_not_there(out, args.overwrite, "robot")
     check_writable(out, "robot")
     opt = ImportOptions(
         tcp=args.tcp,

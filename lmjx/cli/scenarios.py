@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from lmjx.cli.common import _add_robot, _load_robot
+from lmjx.cli.common import SEED_RANGE, _add_robot, _load_robot, _seed
 
 # Set by `lmjx.cli.main` when MUJOCO_GL named an OpenGL that is not installed (and was unset).
 gl_note: str | None = None
@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--map", metavar="FILE", help="with --check: the map whose reach the goal must lie in")
     p.add_argument("--json", action="store_true", help="with --check: print a JSON summary on stdout")
-    p.add_argument("--seed", type=int, default=0, help="layout seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help=f"layout seed, {SEED_RANGE} (default 0)")
     p.add_argument("--tasks", choices=("paper", "hard"), default="paper", help="the task set (default paper)")
     _add_robot(p)
     p.set_defaults(run=cmd_scenarios)
@@ -90,14 +90,14 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     from lmjx.sim.scenarios import SCENARIOS, resolve_task
 
     out = Path(args.out)
-    check_writable(out / "scenario1.png", "pictures")
     robot = _load_robot(args)
+    q = park_pose(robot, parse_failure("case2" if "case2" in robot.profile.presets else "none", robot))
+    tasks = {n: resolve_task(n, robot, args.tasks) for n in sorted(SCENARIOS)}
+    check_writable(out / "scenario1.png", "pictures")  # the folder made once everything is checked
     problem = gl_note or gl_problem()
     if problem is not None:
         print(f"note: drawing the diagrams only: {problem}", file=sys.stderr)
-    q = park_pose(robot, parse_failure("case2" if "case2" in robot.profile.presets else "none", robot))
-    for n in sorted(SCENARIOS):
-        task = resolve_task(n, robot, args.tasks)
+    for n, task in tasks.items():
         sc = task.scenario
         path = out / f"scenario{n}.png"
         scenario_picture(robot, sc, task.layout(args.seed), q, path, with_render=problem is None)

@@ -33,6 +33,21 @@ def _port(text: str) -> int:
     return v
 
 
+def _moment(text: str) -> str:
+    """--at: start, end, or a time in seconds (a finite number, at least 0), kept as given."""
+    import math
+
+    if text in ("start", "end"):
+        return text
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"give start, end or a time in seconds, got {text!r}") from None
+    if not (math.isfinite(seconds) and seconds >= 0):
+        raise argparse.ArgumentTypeError(f"a time in seconds is a finite number at least 0, got {text}")
+    return text
+
+
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from lmjx.view.options import DRAWINGS, QUANTITIES
 
@@ -79,7 +94,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         f"the GUI offers both: {', '.join(DRAWINGS)})",
     )
     p.add_argument(
-        "--at", default="start", metavar="start|end|SECONDS", help="a trial: the moment shown first (default start)"
+        "--at",
+        type=_moment,
+        default="start",
+        metavar="start|end|SECONDS",
+        help="a trial: the moment shown first (default start)",
     )
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=_port, default=8080, help="port to serve on (default 8080; 0: any free port)")

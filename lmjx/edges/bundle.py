@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from kernels.rollout import REASONS, RolloutSettings
+from lmjx import checks
 from lmjx.errors import ConfigError
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
@@ -105,6 +106,7 @@ class BundleConfig:
             raise ConfigError(f"chunk must be positive, got {self.chunk}")
         if self.build_chunk is not None and self.build_chunk < 1:
             raise ConfigError(f"--chunk must be positive, got {self.build_chunk}")
+        checks.seed(self.seed)
 
     def rollout_settings(self) -> RolloutSettings:
         return RolloutSettings(dt=self.dt, steps=self.steps, damping=self.damping, unroll_checks=backend() != "cpu")

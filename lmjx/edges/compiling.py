@@ -141,11 +141,13 @@ class BackgroundCompile:
     """A build's compiling in a daemon thread of its own: `own` (the build's programs) one
     after the other, then `presets` (other failures' programs, for later builds).
     `wait_own` waits for the build's programs (raising their error, if any); `finish`, at the
-    end of the build, for the presets'; `abandon`, on a failed build, starts no other."""
+    end of the build, for the presets'; `abandon`, on a failed build, starts no other, of
+    either kind."""
 
     def __init__(self, own: list[Callable[[], object]], presets: PresetCompiler | None = None) -> None:
         self.presets = presets
         self._own_done = threading.Event()
+        self._abandoned = threading.Event()
         self._failed: list[BaseException] = []
         self.thread = threading.Thread(target=self._run, args=(own,), name="lmjx-compile", daemon=True)
         _RUNNING.add(self)
@@ -154,6 +156,8 @@ class BackgroundCompile:
     def _run(self, own: list[Callable[[], object]]) -> None:
         try:
             for step in own:
+                if self._abandoned.is_set():
+                    return
                 step()
         except BaseException as e:  # handed to whoever waits
             self._failed.append(e)
@@ -170,6 +174,7 @@ class BackgroundCompile:
             raise self._failed[0]
 
     def abandon(self) -> None:
+        self._abandoned.set()
         if self.presets is not None:
             self.presets.stop()
 

@@ -281,9 +281,11 @@ class MapWriter:
             "raw_bytes_per_state": w["raw_bytes_per_state"],
         }
 
-    def abort(self) -> None:
+    def abort(self, wait: bool = False) -> None:
         """Stop the writing process, the feeder and the packers (an interrupted or failed
-        build); the pipes closed."""
+        build), and remove the map it was writing; the pipes closed.  `wait`: for the packers
+        saving a chunk (a failed build, which then leaves no temporary file behind; an
+        interrupted one leaves at once)."""
         self.stop.set()
         if self.proc.poll() is None:
             self.proc.terminate()
@@ -291,7 +293,9 @@ class MapWriter:
                 self.proc.wait(5)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
-        self.pool.shutdown(wait=False, cancel_futures=True)
+                self.proc.wait()
+        self.pool.shutdown(wait=wait, cancel_futures=True)
+        self.tmp.unlink(missing_ok=True)
         for conn in (self.to_writer, self.from_writer):
             conn.close()
 

@@ -166,14 +166,21 @@ class EdgeDraws:
     length: np.ndarray  # (n,) int32 control steps
 
 
+def start_cells(reach: ReachResult) -> np.ndarray:
+    """(nc, 2) iy, ix of the cells edges may start from (those with a solution); ConfigError
+    when there is none."""
+    cells = np.argwhere(reach.labels >= NPM)
+    if len(cells) == 0:
+        raise ConfigError(f"failure {reach.failure.spec}: no reachable cell on the task plane, so no edge can start")
+    return cells
+
+
 def draw_edges(reach: ReachResult, config: BundleConfig, robot: Robot, start: int, stop: int) -> EdgeDraws:
     """Draw edges [start, stop): cell, point, target, restarts, twist, duration (host only)."""
     failure = reach.failure
     n = stop - start
     free = list(failure.free(robot.nq))
-    cells = np.argwhere(reach.labels >= NPM)  # (nc, 2) iy, ix with a solution
-    if len(cells) == 0:
-        raise ConfigError(f"failure {failure.spec}: no reachable cell on the task plane, so no edge can start")
+    cells = start_cells(reach)  # (nc, 2) iy, ix with a solution
     sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
     radius = robot.arm.site_radius[list(sites)]
     rc = reach.config

@@ -43,19 +43,19 @@ import shutil
 import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from lmjx import __version__
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
-from lmjx.edges.chunkfile import saved_chunks
+from lmjx.edges.chunkfile import NAME, saved_chunks
 from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, preset_programs
+from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter
-from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts
+from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, start_cells
 from lmjx.errors import ConfigError, OutputPathError
 from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_reach_map
@@ -140,23 +140,25 @@ def partial_path(out: str | Path) -> Path:
     return out.with_name(out.name + ".partial")
 
 
-def _plan(robot: Robot, failure: Failure, reach_cfg: ReachConfig, config: BundleConfig) -> dict:
-    """What a partial build holds (a resume must match it)."""
-    reach = {k: v for k, v in asdict(reach_cfg).items() if k not in ("strategy", "chunk", "traced_locks")}
-    return json.loads(
-        json.dumps(
-            {
-                "lmjx_version": __version__,
-                "robot_model_hash": robot.model_hash,
-                "failure": failure.spec,
-                "locked": [list(x) for x in failure.locked],
-                "reach": reach,
-                "edges": config.content(),
-                "n": config.n_edges(),
-            },
-            default=list,
-        )
-    )
+def _kept(out: Path, plan: dict, overwrite: bool, lead: bool) -> bool:
+    """Whether `out` already holds the map of `plan` (then the build keeps it: True); refuses
+    any other file there unless `overwrite` (OutputPathError).  Process 0 looks, and tells
+    the others."""
+    import jax
+
+    verdict, differs = 0, None  # 0: build, 1: keep the map there, 2: refused
+    if lead and out.exists() and not out.is_dir():
+        differs = difference(out, plan)
+        verdict = 1 if differs is None and not overwrite else 2 if differs is not None and not overwrite else 0
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        verdict = int(multihost_utils.broadcast_one_to_all(np.int32(verdict)))
+    if verdict == 2:
+        what = differs or "a file process 0 refuses to replace"
+        raise OutputPathError(f"--out {out} already holds {what}; add --overwrite to replace it, or choose another "
+                              "--out")  # fmt: skip
+    return verdict == 1
 
 
 def missing_ranges(done: list[tuple[int, int]], n: int, size: int) -> list[tuple[int, int]]:
@@ -196,21 +198,57 @@ def build_map(
     yes: bool = False,
     say=print,
     compile_presets: bool | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Build (or finish) the map file `out`: reach map + edge bundle, streamed.  Returns a
     summary (for the command line).  The interpreter's switch interval is at most
     `SWITCH_INTERVAL` meanwhile (restored after).
 
+    A file already at `out` is kept when it is the map this build writes (`existing`): the
+    summary is then {"kept": True}; any other file is replaced only when `overwrite`, else
+    OutputPathError.  A build that fails removes the partial folder it started unless it
+    holds computed edges (then `say` is told it is kept, for a rerun to resume); an
+    interrupted one keeps it where it holds the edges or the reach map.
+
     `compile_presets`: also compile the programs of the robot's other preset failures
     (`lmjx.edges.compiling`) where the cache lacks them, after the build's own, and wait for
     them before returning; None: on accelerators (on a CPU the compiling would take the
     cores the build needs), with a cache folder, in one process."""
+    import jax
+
+    folder = partial_path(out)
+    started = jax.process_index() == 0 and not folder.exists()  # this run makes the partial folder
     before = sys.getswitchinterval()
     sys.setswitchinterval(min(before, SWITCH_INTERVAL))
     try:
-        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say, compile_presets)
+        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say, compile_presets,
+                          overwrite)  # fmt: skip
+    except BaseException as e:
+        if jax.process_index() == 0:
+            kept = leave_partial(folder, started, interrupted=isinstance(e, KeyboardInterrupt))
+            if kept is not None and not isinstance(e, KeyboardInterrupt):
+                say(kept)
+        raise
     finally:
         sys.setswitchinterval(before)
+
+
+def leave_partial(folder: Path, started: bool, interrupted: bool) -> str | None:
+    """After a failed or interrupted build: remove the partial folder where nothing in it can
+    be resumed and this run `started` it (a folder an earlier run left is kept), and any
+    temporary file in a folder kept.  Resumable: saved chunks of edges, and after an
+    interrupt the reach map too (a failure is not resumed from the reach map alone: the
+    rerun would meet the same failure).  A line saying what is kept, or None."""
+    if not folder.is_dir():
+        return None
+    for f in folder.iterdir():
+        if f.name.endswith(".tmp"):
+            f.unlink(missing_ok=True)
+    chunks = any(NAME.match(f.name) for f in folder.iterdir())
+    if started and not chunks and not (interrupted and (folder / "reach.h5").exists()):
+        shutil.rmtree(folder, ignore_errors=True)
+        return None
+    return f"kept {folder}: run the same command to resume, or remove it"
 
 
 def _build_map(
@@ -224,6 +262,7 @@ def _build_map(
     yes: bool,
     say,
     compile_presets: bool | None,
+    overwrite: bool,
 ) -> dict:
     import jax
 
@@ -236,6 +275,9 @@ def _build_map(
     lead = jax.process_index() == 0
     n = config.n_edges()
     devices = sharding.device_count() if sharded else 1
+    plan = build_plan(robot, failure, reach_cfg, config)
+    if _kept(out, plan, overwrite, lead):
+        return {"kept": True}
     if lead:
         check_writable(out, "map file")
         pre = preflight(n, out, devices, jax.default_backend())
@@ -255,7 +297,6 @@ def _build_map(
                 f"{n:,} edges would take about {_duration(pre.seconds)} here; add --yes to start anyway "
                 "(it can be stopped and resumed), or ask for fewer --edges"
             )
-    plan = _plan(robot, failure, reach_cfg, config)
     reach: ReachResult | None = None
     if lead:
         folder.mkdir(parents=True, exist_ok=True)
@@ -329,6 +370,7 @@ def _build_map(
         # every process computes the reach map (the edges are drawn from it)
         reach = reach_map(failure, reach_cfg, robot=robot, progress=progress and lead)
         reach_compile = reach.compile_seconds
+        start_cells(reach)  # a failure that reaches no cell stops here, not after compiling the edges' programs
         if lead and not has_reach:
             write_reach_map(folder / "reach.h5", reach, robot)
     t_reach = time.perf_counter() - t0
@@ -375,9 +417,9 @@ def _build_map(
                     writer.put(samples, idx, rolled)
                 main["wait"] += t2 - t
                 main["hand_over"] += time.perf_counter() - t2
-    except BaseException:
+    except BaseException as e:
         if writer is not None:
-            writer.abort()
+            writer.abort(wait=not isinstance(e, KeyboardInterrupt))
         raise
     finally:
         for pool in pools:
@@ -393,8 +435,8 @@ def _build_map(
     if writer is not None:
         try:
             summary |= writer.finish(out, _totals(kernel_sets, stages["edges"]), edge_seconds, device)
-        except BaseException:
-            writer.abort()
+        except BaseException as e:
+            writer.abort(wait=not isinstance(e, KeyboardInterrupt))
             raise
         summary["compile_by_stage"] = stages
         summary["reach_seconds"] = t_reach

@@ -7,7 +7,9 @@ each of them costs a chunk decompressed under the interpreter lock, one after an
 the raw chunks (`read_direct_chunk`), undoes HDF5's deflate and shuffle filters on all
 cores (zlib releases the lock) and keeps the decompressed chunks in a bounded LRU cache,
 so the edges over a target, visited again at the next decision, cost nothing the second
-time.  Datasets stored any other way (other filters or chunk shapes) are read through h5py.
+time; a chunk stored with HDF5's Fletcher-32 checksum (maps lmjx writes) is checked as HDF5
+would check it.  Datasets stored any other way (other filters or chunk shapes) are read
+through h5py.  A damaged chunk, either way, is a one-line `MapFileError`.
 """
 
 from __future__ import annotations
@@ -21,20 +23,34 @@ from concurrent.futures import ThreadPoolExecutor
 import h5py
 import numpy as np
 
+from lmjx.errors import MapFileError
+from lmjx.mapfile.checksum import ChecksumError, strip_checksum
 from lmjx.runtime.cores import usable_cores
 
 CACHE_BYTES = 256 * 2**20  # decompressed chunks kept per dataset
 
 
+PLAIN = [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE]  # what lmjx writes, with or without Fletcher-32 last
+
+
 def _plain_filters(ds: h5py.Dataset) -> bool:
-    """True when every chunk of `ds` is shuffle, then deflate (what lmjx writes), nothing else."""
+    """True when every chunk of `ds` is shuffle, then deflate (what lmjx writes), then
+    perhaps a Fletcher-32 checksum, nothing else."""
     if ds.chunks is None or ds.ndim != 2 or ds.chunks[1] != ds.shape[1] or ds.dtype != np.float32:
         return False
-    if ds.compression != "gzip" or not ds.shuffle or ds.fletcher32 or ds.scaleoffset is not None:
+    if ds.compression != "gzip" or not ds.shuffle or ds.scaleoffset is not None:
         return False
     plist = ds.id.get_create_plist()
     names = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
-    return names == [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE]
+    return names in (PLAIN, [*PLAIN, h5py.h5z.FILTER_FLETCHER32])
+
+
+def damaged(ds: h5py.Dataset, rows: str, why: str) -> MapFileError:
+    """The one-line error for a damaged part of a map's dataset."""
+    return MapFileError(
+        f"{ds.file.filename}: {ds.name} is damaged ({rows}: {why}); lmjx info --verify lists every damaged part; "
+        "rebuild the map"
+    )
 
 
 class StateReader:
@@ -46,6 +62,7 @@ class StateReader:
         self.shape = ds.shape
         self.dtype = ds.dtype
         self.fast = _plain_filters(ds)
+        self.checked = bool(ds.fletcher32)  # chunks end in HDF5's Fletcher-32 checksum
         self.rows = ds.chunks[0] if ds.chunks else 0
         self.width = ds.shape[1] if ds.ndim == 2 else 0
         self.cache: OrderedDict[int, np.ndarray] = OrderedDict()
@@ -67,10 +84,22 @@ class StateReader:
             self._pool.shutdown()
             self._pool = None
 
-    def _decompress(self, raw: bytes) -> np.ndarray:
-        flat = np.frombuffer(zlib.decompress(raw), np.uint8)
-        # shuffle stores byte 0 of every element, then byte 1, ...: undo it
-        return np.ascontiguousarray(flat.reshape(4, -1).T).view(np.float32).reshape(self.rows, self.width)
+    def _decompress(self, c: int, raw: bytes) -> np.ndarray:
+        """Chunk `c`'s rows from its stored bytes (checksum checked, deflate and shuffle undone)."""
+        try:
+            body = strip_checksum(raw) if self.checked else raw
+            flat = np.frombuffer(zlib.decompress(body), np.uint8)
+            # shuffle stores byte 0 of every element, then byte 1, ...: undo it
+            return np.ascontiguousarray(flat.reshape(4, -1).T).view(np.float32).reshape(self.rows, self.width)
+        except (ChecksumError, zlib.error, ValueError) as e:
+            raise damaged(self.ds, f"rows {c * self.rows:,} to {(c + 1) * self.rows - 1:,}", str(e)) from None
+
+    def _h5py_rows(self, key):
+        """Rows read through h5py (which checks any checksum), a damaged chunk a MapFileError."""
+        try:
+            return self.ds[key]
+        except OSError as e:
+            raise damaged(self.ds, f"rows {key}", str(e).splitlines()[0] if str(e) else "unreadable") from None
 
     def _load(self, chunks: Iterable[int]) -> dict[int, np.ndarray]:
         """The chunks asked for, decompressing those not yet in the cache (all cores), then
@@ -87,7 +116,10 @@ class StateReader:
             return got
         raws = []
         for c in todo:
-            mask, raw = self.ds.id.read_direct_chunk((c * self.rows, 0))
+            try:
+                mask, raw = self.ds.id.read_direct_chunk((c * self.rows, 0))
+            except OSError as e:  # its place in the file is lost
+                raise damaged(self.ds, f"the chunk of row {c * self.rows:,}", str(e).splitlines()[0]) from None
             if mask:  # a filter was skipped for this chunk: let HDF5 read it
                 raws.append(None)
             else:
@@ -95,14 +127,14 @@ class StateReader:
         if len(todo) > 1 and self.threads > 1:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lmjx-states")
-            blocks = list(self._pool.map(lambda r: None if r is None else self._decompress(r), raws))
+            blocks = list(self._pool.map(lambda c, r: None if r is None else self._decompress(c, r), todo, raws))
         else:
-            blocks = [None if r is None else self._decompress(r) for r in raws]
+            blocks = [None if r is None else self._decompress(c, r) for c, r in zip(todo, raws, strict=True)]
         for c, block in zip(todo, blocks, strict=True):
             if block is None:
                 a = c * self.rows
                 block = np.zeros((self.rows, self.width), np.float32)
-                part = self.ds[a : min(a + self.rows, self.shape[0])]
+                part = self._h5py_rows(slice(a, min(a + self.rows, self.shape[0])))
                 block[: len(part)] = part
             self._put(c, block)
             got[c] = block
@@ -130,13 +162,13 @@ class StateReader:
 
     def __getitem__(self, key):
         if not self.fast or not isinstance(key, slice) or key.step not in (None, 1):
-            return self.ds[key]
+            return self._h5py_rows(key)
         a, b, _ = key.indices(self.shape[0])
         if b <= a:
             return np.zeros((0, self.width), np.float32)
         chunks = self._chunks_of(a, b)
         if len(chunks) * self.rows * self.width * 4 > self.cache_bytes // 2:
-            return self.ds[key]  # a long run of rows: HDF5 reads it as well as we would
+            return self._h5py_rows(key)  # a long run of rows: HDF5 reads it as well as we would
         with self._lock:
             blocks = self._load(chunks)
             parts = []

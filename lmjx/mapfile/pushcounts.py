@@ -35,11 +35,12 @@ def write_push_counts(edges: h5py.Group, entries: list, attrs: dict) -> None:
         ("scenario", [e.scenario for e in entries], np.int8, "scenario number (1, 2, 3)"),
         ("tasks", [e.tasks for e in entries], STR_DTYPE, "task set (paper, hard)"),
     ):
+        checked = {} if dtype is STR_DTYPE else {"chunks": True, "fletcher32": True}  # (text takes no filter)
         ds = g.create_dataset(name, data=np.array(data, dtype=object if dtype is STR_DTYPE else dtype), dtype=dtype,
-                              track_times=False)  # fmt: skip
+                              track_times=False, **checked)  # fmt: skip
         ds.attrs["doc"] = doc
     ds = g.create_dataset("counts", data=counts, compression="gzip", compression_opts=4, shuffle=True,
-                          chunks=(1, *counts.shape[1:]), track_times=False)  # fmt: skip
+                          chunks=(1, *counts.shape[1:]), fletcher32=True, track_times=False)  # fmt: skip
     ds.attrs["doc"] = "(entries, ny, nx) edges pushing toward the goal over each reach cell"
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
-from lmjx.mapfile.lazystates import StateReader
+from lmjx.mapfile.lazystates import StateReader, damaged
 from lmjx.mapfile.pushcounts import read_push_counts
 from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
 from lmjx.model.failure import Failure
@@ -200,20 +200,29 @@ def load_map(
     )
 
 
+def _values(ds: h5py.Dataset) -> np.ndarray:
+    """A dataset's values; a part HDF5 cannot read back (a chunk whose checksum fails, ...)
+    is a one-line MapFileError naming the dataset."""
+    try:
+        return ds[...]
+    except OSError as e:
+        raise damaged(ds, "a chunk HDF5 cannot read back", str(e).splitlines()[0] if str(e) else "unreadable") from None
+
+
 def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> ReachResult:
     a = dict(g.attrs)
     return ReachResult(
         failure=failure,
         config=config_from_attrs(ReachConfig, a),
-        xs=g["x"][...],
-        ys=g["y"][...],
-        labels=g["labels"][...],
-        labels_smooth=g["labels_smooth"][...],
-        q=g["q"][...],
-        attempt=g["attempt"][...],
-        site=g["site"][...],
-        target=g["target"][...],
-        pos_err=g["pos_err"][...],
+        xs=_values(g["x"]),
+        ys=_values(g["y"]),
+        labels=_values(g["labels"]),
+        labels_smooth=_values(g["labels_smooth"]),
+        q=_values(g["q"]),
+        attempt=_values(g["attempt"]),
+        site=_values(g["site"]),
+        target=_values(g["target"]),
+        pos_err=_values(g["pos_err"]),
         seconds=float(a["seconds"]),
         compile_seconds=float(a["compile_seconds"]),
         kernel_seconds=float(a.get("kernel_seconds", float("nan"))),
@@ -226,13 +235,13 @@ def _read_reach(g: h5py.Group, failure: Failure, robot: Robot, root: dict) -> Re
 
 def _read_edges(g: h5py.Group, failure: Failure, lazy: bool) -> Bundle:
     a = dict(g.attrs)
-    offset = g["offset"][...]
-    length = g["length"][...]
-    q = g["q"] if lazy else g["q"][...]
+    offset = _values(g["offset"])
+    length = _values(g["length"])
+    q = g["q"] if lazy else _values(g["q"])
     if len(offset) and int(offset[-1] + length[-1]) != len(q):
         raise MapFileError("the edge offsets do not match the stored states; rebuild the map")
     if "q_start" in g:
-        q_start = g["q_start"][...]
+        q_start = _values(g["q_start"])
     elif lazy:  # a map written before q_start was stored
         q_start = np.concatenate([q[o : o + 1] for o in offset]) if len(offset) else np.zeros((0, q.shape[1]))
     else:
@@ -243,19 +252,19 @@ def _read_edges(g: h5py.Group, failure: Failure, lazy: bool) -> Bundle:
         offset=offset,
         length=length,
         q=q,
-        qd=g["qd"] if lazy else g["qd"][...],
-        p=g["p"] if lazy else g["p"][...],
+        qd=g["qd"] if lazy else _values(g["qd"]),
+        p=g["p"] if lazy else _values(g["p"]),
         q_start=q_start.astype(np.float32),
-        twist=g["twist"][...],
-        duration=g["duration"][...],
-        site=g["site"][...],
-        start_cell=g["start_cell"][...],
-        min_manipulability=g["min_manipulability"][...],
-        peak_torque_ratio=g["peak_torque_ratio"][...],
-        peak_velocity_ratio=g["peak_velocity_ratio"][...],
-        peak_acceleration_ratio=g["peak_acceleration_ratio"][...],
-        index_offset=g["index/offset"][...],
-        index_edges=g["index/edges"][...],
+        twist=_values(g["twist"]),
+        duration=_values(g["duration"]),
+        site=_values(g["site"]),
+        start_cell=_values(g["start_cell"]),
+        min_manipulability=_values(g["min_manipulability"]),
+        peak_torque_ratio=_values(g["peak_torque_ratio"]),
+        peak_velocity_ratio=_values(g["peak_velocity_ratio"]),
+        peak_acceleration_ratio=_values(g["peak_acceleration_ratio"]),
+        index_offset=_values(g["index/offset"]),
+        index_edges=_values(g["index/edges"]),
         sampled=int(a["edges_sampled"]),
         rejected={k[len("rejected_") :]: int(v) for k, v in a.items() if k.startswith("rejected_")},
         seconds=float(a["seconds"]),

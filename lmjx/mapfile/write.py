@@ -1,6 +1,7 @@
 """Writing map files: the Reach-Ability map, the edge bundle (whole, or streamed chunk by
 chunk with `EdgeWriter`) and the spatial index; every file written atomically (temporary
-file, then rename), so an interrupted write never leaves a corrupt map.
+file, then rename), so an interrupted write never leaves a corrupt map, and every chunked
+dataset with HDF5's Fletcher-32 checksum, so that a later damage is detected on reading.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
+from lmjx.mapfile.checksum import with_checksum
 from lmjx.mapfile.digest import store_digest
 from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.schema import (
@@ -42,10 +44,14 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib gives the s
 
 
 def _dataset(group: h5py.Group, name: str, data: np.ndarray, doc: str, compress: bool = True) -> None:
+    """A dataset of `data`, with HDF5's Fletcher-32 checksum (chunked) unless it is a scalar or
+    empty; gzip-compressed when `compress` and of 64 values or more."""
     data = np.asarray(data)
     kwargs: dict = {"track_times": False}
+    if data.ndim and data.size:
+        kwargs.update(chunks=True, fletcher32=True)
     if compress and data.size >= 64:
-        kwargs.update(compression="gzip", compression_opts=4, shuffle=True, chunks=True)
+        kwargs.update(compression="gzip", compression_opts=4, shuffle=True)
     ds = group.create_dataset(name, data=data, **kwargs)
     ds.attrs["doc"] = doc
 
@@ -171,7 +177,8 @@ def bundle_attrs(b: Bundle) -> dict:
 class EdgeWriter:
     """Writes /edges of a map file piece by piece, in bounded memory: the states (q, qd, p,
     in HDF5 chunks of `STATE_ROWS` rows) and the per-edge arrays (`EDGE_ROWS` rows) are
-    compressed with HDF5's own shuffle and deflate filters (readable by any HDF5 library)
+    compressed with HDF5's own shuffle and deflate filters and checksummed as its Fletcher-32
+    filter does (`mapfile.checksum`; readable and checked by any HDF5 library)
     on all cores and written whole chunk by whole chunk as they fill; `offset` is computed
     from the lengths.  The caller's thread only slices and writes: every copy and all the
     compression happen in the pool."""
@@ -208,7 +215,7 @@ class EdgeWriter:
         rows = STATE_ROWS if name in PER_STATE else EDGE_ROWS
         ds = self.group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape), dtype=dtype,
                                        chunks=(rows, *shape), compression="gzip", compression_opts=DEFLATE_LEVEL,
-                                       shuffle=True, track_times=False)  # fmt: skip
+                                       shuffle=True, fletcher32=True, track_times=False)  # fmt: skip
         ds.attrs["doc"] = doc
         return ds
 
@@ -242,7 +249,7 @@ class EdgeWriter:
             chunks = col.chunks(final)
             for i in range(0, len(chunks), GROUP):
                 group = chunks[i : i + GROUP]
-                job = self.pool.submit(_write_chunks, col.ds, group, col.rows_per_chunk, col.dtype)
+                job = self.pool.submit(_write_chunks, col.ds, group, col.rows_per_chunk, col.dtype, col.fletcher)
                 self.inflight.append((len(group), job))
                 self.in_flight += len(group)
         self._wait(final)
@@ -282,6 +289,7 @@ class _Column:
     def __init__(self, ds: h5py.Dataset, rows_per_chunk: int) -> None:
         self.ds, self.rows_per_chunk = ds, rows_per_chunk
         self.dtype = ds.dtype  # kept: each h5py call waits for h5py's lock, held by the writing threads
+        self.fletcher = ds.fletcher32
         self.pending: collections.deque[np.ndarray] = collections.deque()
         self.waiting = 0  # rows in `pending`
         self.written = 0  # rows handed on (whole chunks, until the last)
@@ -319,9 +327,13 @@ class _Column:
 GROUP = 4  # consecutive chunks of a dataset written by one job of EdgeWriter's pool
 
 
-def _write_chunks(ds: h5py.Dataset, chunks: list[tuple[int, list[np.ndarray]]], rows: int, dtype: np.dtype) -> None:
+def _write_chunks(ds: h5py.Dataset, chunks: list[tuple[int, list[np.ndarray]]], rows: int, dtype: np.dtype,
+                  fletcher: bool | None = None) -> None:  # fmt: skip
     """Consecutive chunks (first row, pieces) of `ds`, assembled in one zero-padded block
-    and shuffled at once, then compressed and written one by one."""
+    and shuffled at once, then compressed, checksummed where `ds` has HDF5's Fletcher-32
+    filter (`fletcher`; None: ask `ds`) and written one by one: the bytes HDF5's shuffle,
+    deflate (and Fletcher-32) filters would store."""
+    fletcher = ds.fletcher32 if fletcher is None else fletcher
     first = chunks[0][1][0]
     block = np.zeros((len(chunks) * rows, *first.shape[1:]), dtype)
     at = 0
@@ -334,7 +346,8 @@ def _write_chunks(ds: h5py.Dataset, chunks: list[tuple[int, list[np.ndarray]]], 
     shuffled = np.ascontiguousarray(block.view(np.uint8).reshape(len(chunks), -1, size).transpose(0, 2, 1))
     zeros = (0,) * (first.ndim - 1)
     for (row, _), data in zip(chunks, shuffled, strict=True):
-        ds.id.write_direct_chunk((row, *zeros), _deflate.compress(data, DEFLATE_LEVEL), 0)
+        packed = _deflate.compress(data, DEFLATE_LEVEL)
+        ds.id.write_direct_chunk((row, *zeros), with_checksum(packed) if fletcher else packed, 0)
 
 
 def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np.ndarray | None) -> h5py.Dataset:
@@ -363,6 +376,7 @@ def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np
         compression="gzip",
         compression_opts=4,
         shuffle=True,
+        fletcher32=True,
         track_times=False,
     )
     ds.attrs["doc"] = "edge ids"

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from kernels.ik import IKSettings
+from lmjx import checks
 from lmjx.errors import ConfigError
 from lmjx.model.failure import Failure, as_failure
 from lmjx.model.robot import Robot, as_robot
@@ -33,6 +34,7 @@ from lmjx.runtime.progress import Progress
 from lmjx.runtime.reprs import config_repr
 
 UNREACHABLE, NPM, PM = 0, 1, 2
+MAX_ATTEMPTS = 128  # attempts per cell: a map stores each cell's first successful one as int8
 LABEL_NAMES = {UNREACHABLE: "unreachable", NPM: "npm", PM: "pm"}
 
 
@@ -65,8 +67,9 @@ class ReachConfig:
         for name, (lo, hi) in (("x", self.x_range), ("y", self.y_range)):
             if not (math.isfinite(lo) and math.isfinite(hi) and hi - lo >= self.cell):
                 raise ConfigError(f"task plane {name} range [{lo:g}, {hi:g}] must span at least one cell")
-        if self.attempts < 2:
-            raise ConfigError(f"attempts (k) must be at least 2, got {self.attempts}")
+        if not 2 <= self.attempts <= MAX_ATTEMPTS:
+            raise ConfigError(f"attempts (k) must be 2 to {MAX_ATTEMPTS} (a map stores the attempt as int8), got "
+                              f"{self.attempts}")  # fmt: skip
         if self.restarts < 1:
             raise ConfigError(f"restarts must be at least 1, got {self.restarts}")
         if self.iterations < 1:
@@ -85,6 +88,7 @@ class ReachConfig:
             raise ConfigError(f"chunk must be positive, got {self.chunk}")
         if not 1 <= self.fill_neighbors <= 8:
             raise ConfigError(f"fill_neighbors must be 1..8, got {self.fill_neighbors}")
+        checks.seed(self.seed)
 
     @property
     def n_pm(self) -> int:

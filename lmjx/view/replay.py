@@ -164,6 +164,8 @@ def frame_at(text: str, n_frames: int) -> int:
         seconds = float(text)
     except ValueError:
         raise ConfigError(f"--at {text!r}: give start, end or a time in seconds") from None
+    if not np.isfinite(seconds):
+        raise ConfigError(f"--at {text!r}: a time in seconds is a finite number")
     return int(np.clip(round(seconds * FRAME_RATE), 0, n_frames - 1))
 
 
