@@ -104,7 +104,7 @@ def test_a_trial_through_scene_file_equals_the_scenarios(plan_map, tmp_path):
           "--maps", plan_map.parent, "--out")  # fmt: skip
     cli(*ev, tmp_path / "n", "--scenarios", "2").ok()
     cli(*ev, tmp_path / "f", "--scenes", shipped_scene(2, "paper")).ok()
-    n, f = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("n", "f"))
+    n, f = (json.loads((tmp_path / d / "results.json").read_text())["trials"] for d in ("n", "f"))
     assert [_no_wall_time(r) for r in n] == [_no_wall_time(r) for r in f] and n[0]["seed"] == 2000
 
 

@@ -126,8 +126,7 @@ def _add_robot(p: argparse.ArgumentParser, from_map: bool = False) -> None:
     p.add_argument(
         "--robot",
         metavar="NAME|PATH",
-        help=f"the arm: a shipped robot's name (panda, ur5e; lmjx robots) or an MJCF's path (docs/ROBOTS.md) "
-        f"(default: {default})",
+        help=f"a shipped arm (lmjx robots) or an MJCF's path (default: {default})",
     )
 
 

@@ -66,8 +66,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--part",
         metavar="K/N",
         default="1/1",
-        help="run part K of N of every cell (trials K, K+N, ...; default 1/1), each part with its own --out "
-        "(merge them: benchmarks/eval_acceptance.py --merge)",
+        help="part K of N of every cell (trials K, K+N, ...), its own --out; merge: "
+        "benchmarks/eval_acceptance.py --merge",
     )
     _add_planner_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")

@@ -75,8 +75,8 @@ def _add_sim(p: argparse.ArgumentParser) -> None:
         "--sim",
         choices=("auto", "cpu", "cpu-near", "gpu"),
         default="auto",
-        help="the planner's simulator: gpu (MuJoCo Warp on a CUDA GPU), cpu (C MuJoCo on all cores), cpu-near "
-        "(C MuJoCo, the target and its 3 nearest objects) or auto (default: gpu where it can run, else cpu)",
+        help="the planner's simulator: gpu (MuJoCo Warp), cpu (C MuJoCo, all cores), cpu-near (C MuJoCo, the "
+        "target and its 3 nearest objects) or auto (default: gpu where it can run)",
     )
 
 
@@ -85,8 +85,8 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tasks",
         choices=("paper", "hard"),
-        help="the shipped scenarios' task set: paper (default; goals and budget calibrated to the paper's outcomes) "
-        "or hard (goals 22-28 cm away); docs/EVALUATION.md",
+        help="the shipped scenarios' task set: paper (default; calibrated to the paper's outcomes) or hard "
+        "(goals 22-28 cm away)",
     )
     p.add_argument(
         "--max-actions",
@@ -101,9 +101,7 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         help="greedy: actions simulated per decision (default 1024 with --sim gpu, 32 on the CPU)",
     )
     _add_sim(p)
-    p.add_argument(
-        "--planner-config", metavar="FILE", help="the planner's levers from a TOML file of KEY = VALUE lines"
-    )
+    p.add_argument("--planner-config", metavar="FILE", help="the levers from a TOML file (KEY = VALUE)")
     p.add_argument(
         "--set",
         action="append",
@@ -184,9 +182,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--map", required=True, metavar="FILE", help="a map file from lmjx build-map")
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--scenario", type=int, choices=(1, 2, 3), help="1: clutter, 2: tunnel, 3: 11 boxes")
-    which.add_argument(
-        "--scene", metavar="FILE", help="a scene file (TOML, docs/SCENES.md): your own table, objects and goal"
-    )
+    which.add_argument("--scene", metavar="FILE", help="your own scene file (TOML, docs/SCENES.md)")
     p.add_argument("--asm", required=True, choices=("random", "lazy", "greedy"), help="action selection mechanism")
     p.add_argument("--failure", metavar="SPEC", help="refuse the map unless it was built for this failure")
     _add_robot(p, from_map=True)
@@ -202,8 +198,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--strict",
         action="store_true",
-        help=f"exit with status {EXIT_TASK_FAILED} when the task fails (the target does not end in the goal region); "
-        "without it the exit status is 0 whenever the task ran",
+        help=f"exit with status {EXIT_TASK_FAILED} when the target does not end in the goal (else 0 once it ran)",
     )
     _add_device(p)
     p.set_defaults(run=cmd_plan)
