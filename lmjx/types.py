@@ -44,6 +44,7 @@ class Action:
     route: str = "direct"  # the transit: "direct", "park" (through the park pose), "roadmap"; "escape+" any of them
     edge_states: int = -1  # the edge's states executed (fewer than its own where a fixed obstacle cuts it short)
     edge_first: int = 0  # the edge's first state executed (`late_start`: its start in a fixed obstacle's margin)
+    turn: float = 0.0  # [rad] the edge turned about the base joint by this (`turn_edges`, `lmjx.planner.turned`)
 
     @property
     def duration(self) -> float:
@@ -197,6 +198,12 @@ class PlannerConfig:
         "fixed obstacle's margin (2 cm) is offered from its first state clear of the scene, where that part "
         "still acts on the target; false: such an edge is not offered",
     )
+    turn_edges: bool = _lever(
+        True,
+        "after the map's own edges over the target, offer copies of the map's edges turned about the arm's base "
+        "joint (free, its axis vertical: the same motion, torques and velocities, about the base) so that they "
+        "pass over the target (whole degrees, at most 4 turns an edge); false: the map's edges alone",
+    )
     # push_weight 1: on the hard tunnel's calibration seeds 23 of 30 trials with it against 14 without
     push_weight: float = _lever(
         1.0,
@@ -257,9 +264,10 @@ class PlannerConfig:
         distance to the goal, Lazy over all the edges over the target in random order with no
         fallback (when none moves the target toward the goal: no action), Greedy on a uniform
         subset of a quarter of them (no push weight: it weighs the path length, not used; no
-        rescoring: the paper's Greedy takes its best simulated candidate)."""
+        rescoring: the paper's Greedy takes its best simulated candidate), the map's edges alone
+        (none turned)."""
         return replace(self, futile_filter=False, path_score=False, lazy_fallback=False, lazy_cap=False,
-                       greedy_fraction=0.25, push_weight=0.0, rescore_top=0)  # fmt: skip
+                       greedy_fraction=0.25, push_weight=0.0, rescore_top=0, turn_edges=False)  # fmt: skip
 
     def settings(self, asm: str | None = None) -> dict:
         """The refinements on or off, for the records of `asm` (default: this config's)."""
@@ -274,6 +282,7 @@ class PlannerConfig:
             "greedy_subset": greedy,
             "when_stuck": self.when_stuck,
             "late_start": self.late_start,
+            "turn_edges": self.turn_edges,
             "push_weight": self.push_weight,
             # (only Greedy's, and only when on: the records of runs before it existed read the same)
             **(

@@ -11,8 +11,9 @@ and why).  tests/test_planning.py compares today's code with it.  Across CPUs on
 the 3,000 lies on a float32 knife edge (found or not: rejected 'ik' 777 or 778, the edge then
 hitting the table or not) and the Random trial's final distance differs by 2 um: the tests
 allow exactly that start to go either way and 20 um on the final distance.  The trials run
-with no push weight, no rescoring and the playback servos (`push_weight=0`, `rescore_top=0`,
-`servo="playback"`): the file tests how the robot is represented, not the planner's defaults.
+with no push weight, no rescoring, the playback servos and the map's edges alone (`push_weight=0`,
+`rescore_top=0`, `servo="playback"`, `turn_edges=False`): the file tests how the robot is
+represented, not the planner's defaults.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ def trial_figures(path: str) -> dict:
         cfg = PlannerConfig(
             asm=asm, max_actions=TRIAL["max_actions"], greedy_candidates=TRIAL["greedy_candidates"],
             lazy_tries=TRIAL["lazy_tries"], push_weight=0.0, rescore_top=0,  # (module docstring)
-            servo="playback",
+            servo="playback", turn_edges=False,
         )  # fmt: skip
         res = run_trial(setup_trial(robot, m, resolve_task(TRIAL["scenario"], robot, "hard"), cfg, seed=TRIAL["seed"]))
         out[asm] = {

@@ -188,10 +188,9 @@ def test_panda_map_is_unchanged_by_the_robot_generalisation(small_map):
 def test_trials_run_and_repeat(robot, plan_map, asm):
     m = load_map(plan_map)
     # (the golden trials' settings: no push weight, so the score below is the path length; no
-    # rescoring; the playback servos)
-    cfg = PlannerConfig(
-        asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4, push_weight=0.0, rescore_top=0, servo="playback"
-    )
+    # rescoring; the playback servos; the map's edges alone)
+    cfg = PlannerConfig(asm=asm, max_actions=2, greedy_candidates=8, lazy_tries=4, push_weight=0.0, rescore_top=0,
+                        servo="playback", turn_edges=False)  # fmt: skip
     a = run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), cfg, seed=3))
     b = run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), cfg, seed=3))
     wall = {"planning_s": 0, "compile_s": 0}  # the first run compiles what the second finds compiled
@@ -233,7 +232,7 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
                            "--json").ok().stdout)  # fmt: skip
     want = {"futile_filter": False, "path_score": False, "lazy_fallback": False, "lazy_tries": None,
             "greedy_subset": "0.25 of the edges over the target", "when_stuck": "options",
-            "late_start": True, "push_weight": 0.0, "servo": "robot"}  # fmt: skip
+            "late_start": True, "turn_edges": False, "push_weight": 0.0, "servo": "robot"}  # fmt: skip
     assert out["asm_settings"]["when_stuck"] == "best" and out["asm_settings"]["late_start"] is False
     assert out["asm_settings"]["servo"] == "robot"  # the default (the ASMs' settings keep it)
     assert paper["asm_settings"] == want
@@ -269,7 +268,8 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
     (maps / "case2.h5").write_bytes(small_map.read_bytes())
     ev = tmp_path / "eval"
     args = ("evaluate", "--failures", "case2", "--scenarios", "1", "--asms", "random,greedy", "--trials", "2",
-            "--max-actions", "2", "--candidates", "4", "--maps", maps, "--out", ev)  # fmt: skip
+            "--max-actions", "2", "--candidates", "4", "--maps", maps, "--out", ev,
+            "--set", "push_weight=0")  # fmt: skip
     cli(*args).ok()
     records = trials_of(ev / "results.json")
     assert len(records) == 4
@@ -282,7 +282,8 @@ def test_plan_and_evaluate_cli(small_map, tmp_path):
             assert not step["transit_hit_fixed"]
             # what the planner expected (Greedy: its pick's simulated outcome; Random simulates
             # nothing) and its score of what came: in scenario 1 nothing fixed stands between
-            # the target and the goal, so the path length is the straight distance (5 mm grid)
+            # the target and the goal, so the path length (no push weight) is the straight
+            # distance (5 mm grid)
             assert (step["predicted_score_m"] is None) == (r["asm"] == "random")
             assert step["score_after_m"] == pytest.approx(step["distance_after_m"], abs=0.005)
     assert "How the trials ended" in (ev / "report.md").read_text()

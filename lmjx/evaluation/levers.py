@@ -30,7 +30,7 @@ PRESET = "asm_settings"  # the key that chooses the ASM settings the other keys 
 ASM_SETTINGS = ("lmjx", "paper")
 PRESET_MEANING = (
     "lmjx: the ASMs with lmjx's refinements (the defaults below); paper: the ASMs as the paper states them "
-    "(futile_filter, path_score, lazy_fallback and lazy_cap false, greedy_fraction 0.25, push_weight 0, "
+    "(futile_filter, path_score, lazy_fallback, lazy_cap and turn_edges false, greedy_fraction 0.25, push_weight 0, "
     "rescore_top 0), applied before the other keys"
 )
 NOT_LEVERS = {

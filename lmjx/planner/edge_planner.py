@@ -46,6 +46,7 @@ from lmjx.planner.scoring import (
     score,
 )
 from lmjx.planner.transit import NO_ACTION_KEYS, TransitPlanner, after_executing
+from lmjx.planner.turned import TurnAxis, TurnedEdges, turn_axis, turned_over_target
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.compiletime import compile_seconds, jax_compile_seconds
 from lmjx.sim.scenarios import Layout, Scenario, in_goal
@@ -66,6 +67,11 @@ def edges_over_target(
     nx = len(xs)
     found = [bundle.edges_over(int(y), int(x), nx) for y in iy for x in ix]
     return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int32)
+
+
+def _degrees(turn: float) -> int:
+    """A turn [rad] in whole degrees (turns are whole degrees: `lmjx.planner.turned`)."""
+    return round(math.degrees(turn))
 
 
 def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
@@ -116,6 +122,8 @@ class Planner:
     ) -> None:
         config.validate()
         self.robot = robot
+        self.failure = failure
+        self._axis: TurnAxis | None = None  # the base joint turned edges turn about (`turn_axis`, found once)
         self.reach = reach
         self.bundle = bundle
         self.sc = sc
@@ -128,7 +136,7 @@ class Planner:
         self.field = _score_field(robot, failure, reach, bundle, sc, config)
         # edges that were executed here and did not move the target toward the goal: target
         # position at the time, per edge (not offered again while the target stays there)
-        self.futile: dict[int, np.ndarray] = {}
+        self.futile: dict[tuple[int, int], np.ndarray] = {}  # keyed by (map edge, turn in degrees)
         self.came_from: np.ndarray | None = None  # the last executed edge's states (transits retreat along it)
         self.trail: np.ndarray | None = None  # every joint target the arm followed in this trial (the way back)
         # rescoring's draws (`PlannerConfig.rescore_top`): a stream of their own, seeded by the
@@ -146,25 +154,29 @@ class Planner:
         cfg = self.config
         target = obs.objects[0, :2]
         self.transits.set_scene(self.sc, obs.objects)
-        edges = edges_over_target(self.bundle, self.reach, target, float(self.sc.target.half[0]), cfg.target_margin)
+        half = float(self.sc.target.half[0])
+        edges = edges_over_target(self.bundle, self.reach, target, half, cfg.target_margin)
         if cfg.futile_filter and self.futile:
-            keep = [e for e in edges if not self._futile_here(int(e), target)]
+            keep = [e for e in edges if not self._futile_here((int(e), 0), target)]
             edges = np.asarray(keep, edges.dtype)
         order = rng.permutation(edges)
+        bundle: Any = self.bundle
+        if cfg.turn_edges:  # the map's own edges first, then turned copies (`lmjx.planner.turned`)
+            bundle, order = self._with_turned(order, target, half, rng)
         now = float(self.field(target))
-        rec = StepRecord(-1, len(edges), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
+        rec = StepRecord(-1, len(order), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, 1, self.came_from, self.trail)
+            acts = self.transits.actions(bundle, order, obs.robot_q, 1, self.came_from, self.trail)
             if acts:
-                rec.edge = acts[0].edge
+                rec.edge, rec.turn_deg = acts[0].edge, _degrees(acts[0].turn)
             else:
                 rec.no_action = dict(self.transits.last_tally)
             return (acts[0] if acts else None), rec
         if cfg.asm == "greedy":
             want = cfg.greedy_candidates
             if cfg.greedy_fraction is not None:
-                want = max(1, math.ceil(cfg.greedy_fraction * len(edges)))
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, want, self.came_from, self.trail)
+                want = max(1, math.ceil(cfg.greedy_fraction * len(order)))
+            acts = self.transits.actions(bundle, order, obs.robot_q, want, self.came_from, self.trail)
             if not acts:
                 rec.no_action = dict(self.transits.last_tally)
                 return None, rec
@@ -196,14 +208,14 @@ class Planner:
                     rec.rescored["overridden"] = True  # the rule when stuck took another candidate
             rec.simulated = len(acts)
             rec.predicted_distance = float(s[best])
-            rec.edge = acts[best].edge
+            rec.edge, rec.turn_deg = acts[best].edge, _degrees(acts[best].turn)
             return acts[best], rec
         # lazy: in random order, the first that brings the target closer wins
         best_a, best_s = None, np.inf
         tries = cfg.lazy_tries if cfg.lazy_cap else len(order)
         improved = False
         if self.batched:  # its tries at once, then the first improvement in their order
-            acts = self.transits.actions(self.bundle, order, obs.robot_q, tries, self.came_from, self.trail)
+            acts = self.transits.actions(bundle, order, obs.robot_q, tries, self.came_from, self.trail)
             rec.simulated = len(acts)
             if acts:
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
@@ -221,7 +233,7 @@ class Planner:
                 if rec.simulated == tries:
                     break
                 self.transits.set_scene(self.sc, obs.objects)  # again: trials run together share `transits`
-                acts = self.transits.actions(self.bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
+                acts = self.transits.actions(bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
                 for k, v in self.transits.last_tally.items():
                     tally[k] += v
                 if not acts:
@@ -239,7 +251,7 @@ class Planner:
         if not (improved or cfg.lazy_fallback):
             best_a = None
         if best_a is not None:
-            rec.edge = best_a.edge
+            rec.edge, rec.turn_deg = best_a.edge, _degrees(best_a.turn)
             rec.predicted_distance = best_s
         return best_a, rec
 
@@ -275,7 +287,34 @@ class Planner:
         }
         return best, rec
 
-    def _futile_here(self, edge: int, target: np.ndarray) -> bool:
+    def _with_turned(
+        self, order: np.ndarray, target: np.ndarray, half: float, rng: np.random.Generator
+    ) -> tuple[TurnedEdges | Bundle, np.ndarray]:
+        """`order` (the map's edges over the target) followed by the turned copies of the map's
+        edges over it (`turned_over_target`, those found futile here left out) in random order,
+        as a view the transit planner takes in the bundle's place, and the view's candidates in
+        that order; the bundle and `order` where there are none."""
+        ids, delta = turned_over_target(
+            self.bundle, self.reach, self.robot, self.failure, target, half, self.config.target_margin
+        )
+        if self.config.futile_filter and self.futile and len(ids):
+            keep = [not self._futile_here((int(e), _degrees(d)), target) for e, d in zip(ids, delta, strict=True)]
+            ids, delta = ids[keep], delta[keep]
+        if not len(ids):
+            return self.bundle, order
+        axis = turn_axis(self.robot, self.failure) if self._axis is None else self._axis
+        assert axis is not None  # (turned copies exist only about one)
+        self._axis = axis
+        mixed = rng.permutation(len(ids))
+        view = TurnedEdges(
+            self.bundle,
+            np.concatenate([np.asarray(order, np.int64), ids[mixed]]),
+            np.concatenate([np.zeros(len(order)), delta[mixed]]),
+            axis,
+        )
+        return view, np.arange(view.n_edges)
+
+    def _futile_here(self, edge: tuple[int, int], target: np.ndarray) -> bool:
         at = self.futile.get(edge)
         return at is not None and float(np.hypot(*(target - at))) < self.config.futile_radius
 
@@ -309,7 +348,11 @@ class Planner:
             planning += rec.planning_s
             simulated += rec.sim_steps
             if action is None:
+                # edges were tested and none offered: for want of a transit, or (none of them
+                # lacking one) their starts blocked or the edges unusable here
                 reason = "no feasible transit"
+                if rec.no_action is not None and not rec.no_action.get("no_transit", 0):
+                    reason = "no feasible action"
                 if rec.candidates == 0:
                     reason = "no edge over the target"
                 elif rec.simulated > 0:
@@ -322,7 +365,7 @@ class Planner:
             self.came_from, self.trail = after_executing(action, self.trail, self.bundle.q_start.dtype)
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
-                self.futile[action.edge] = before
+                self.futile[(action.edge, _degrees(action.turn))] = before
             rec.execution_s = obs.time - t_before
             rec.distance_after = float(goal_distance(self.sc, obs.objects[0, :2]))
             rec.target_moved_m = obs.target_moved_m

@@ -26,6 +26,7 @@ class StepRecord:
     transit_route: str = ""  # "direct", "park" or "roadmap", after an escape "escape+..." (`Action.route`)
     edge_states: int = -1  # the edge's states executed (`Action.edge_states`: fewer where a fixed obstacle cut it)
     edge_first: int = 0  # the edge's first state executed (`Action.edge_first`: > 0 only with late_start)
+    turn_deg: int = 0  # the edge executed turned about the base joint by this [deg] (`Action.turn`: turn_edges)
     compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.runtime.compiletime`)
     simulation_s: float = 0.0  # of planning_s, the seconds its simulations were charged (not in the records)
     sim_steps: int = 0  # control steps its simulations rolled out (`Simulate.control_steps`: what the limit counts)
@@ -68,6 +69,7 @@ class StepRecord:
             "transit_route": self.transit_route,
             "edge_states": self.edge_states,
             **({"edge_first": self.edge_first} if self.edge_first else {}),
+            **({"turn_deg": self.turn_deg} if self.turn_deg else {}),
             **({"compile_s": round(self.compile_s, 3)} if self.compile_s >= 0.0005 else {}),
             **({"sim_steps": self.sim_steps} if self.sim_steps else {}),
             **({"no_action": self.no_action} if self.no_action is not None else {}),
@@ -76,8 +78,10 @@ class StepRecord:
         }
 
 
+# "no feasible transit": edges over the target were tested and some lacked only a transit;
+# "no feasible action": none lacked one (their starts blocked, or the edges unusable there)
 ENDS = ("goal", "budget", "planning limit", "no edge over the target", "no feasible transit",
-        "no edge moves the target", "target off the table")  # fmt: skip
+        "no feasible action", "no edge moves the target", "target off the table")  # fmt: skip
 
 
 @dataclass

@@ -65,6 +65,7 @@ from lmjx.planner.clearance import (
 from lmjx.planner.escape import JamEscapes
 from lmjx.planner.roadmap import Roadmap
 from lmjx.planner.timelaw import retime
+from lmjx.planner.turned import TurnedEdges
 from lmjx.types import CONTROL_DT, Action
 
 ACT_DEPTH = 0.005  # an edge acts on the target when the arm sweeps this deep into its box [m]
@@ -217,6 +218,10 @@ class TransitPlanner(SceneChecks, JamEscapes):
             np.minimum.at(nearest, owner[inside], c[inside, 0])
             prefix[nearest > -ACT_DEPTH] = 0
         prefix[prefix - begin < MIN_EDGE_STATES] = 0
+        if isinstance(bundle, TurnedEdges):  # the base and the table do not turn: check what is executed
+            for j in np.nonzero((prefix > 0) & (bundle.delta[np.asarray(edges, np.int64)] != 0))[0]:
+                if self.colliding_batch(qs[j][begin[j] : prefix[j]].astype(np.float64)).any():
+                    prefix[j] = 0
         return prefix
 
     def late_starts(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
@@ -404,7 +409,9 @@ class TransitPlanner(SceneChecks, JamEscapes):
         return held[key]
 
     def roadmap(self, bundle: Bundle) -> Roadmap:
-        """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle)."""
+        """The roadmap over `bundle`'s edge starts (built on first use, kept per bundle; for
+        turned edges, over their map's)."""
+        bundle = bundle.base if isinstance(bundle, TurnedEdges) else bundle  # (over the map's own starts)
         key = id(bundle)
         if key not in self._roadmaps:
             self._roadmaps[key] = Roadmap(self, bundle.q_start)
@@ -489,6 +496,9 @@ def _action(
     q_edge = states["q"][first:states_used].astype(np.float64)
     qd_edge = states["qd"][first:states_used].astype(np.float64)
     qd_transit = transit_velocities(q_now, transit)
+    turn = 0.0
+    if isinstance(bundle, TurnedEdges):
+        edge, turn = bundle.source(edge)  # the map's edge and its turn
     return Action(
         edge=edge,
         q=np.concatenate([transit, q_edge]),
@@ -498,4 +508,5 @@ def _action(
         route=route,
         edge_states=len(q_edge),
         edge_first=first,
+        turn=turn,
     )

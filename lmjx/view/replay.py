@@ -5,10 +5,11 @@ planner's choice and no simulation of candidates: the world is seeded by the tri
 (`SimulatedRealWorld(robot, seed)`: its physics, and the noise of every observation), the
 layout by the trial's seed, and the action for an edge is a function of the observation
 (`TransitPlanner.actions` for that edge alone gives the action it gives among others).  So
-executing the recorded edges one after another, each with its transit from what the world
-shows then, reproduces the trial, while the world's state is kept at `FRAME_RATE` frames a
-second.  Each replayed action is compared with the record (the target's displacement): a
-replay on another map, or by another version of lmjx, shows where it parts from the record.
+executing the recorded edges one after another (turned about the base joint as recorded:
+`turn_deg`), each with its transit from what the world shows then, reproduces the trial,
+while the world's state is kept at `FRAME_RATE` frames a second.  Each replayed action is
+compared with the record (the target's displacement): a replay on another map, or by another
+version of lmjx, shows where it parts from the record.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ class Replay:
 def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[str], None] | None = None) -> Replay:
     """Execute the record's edges again in its trial's world; see the module docstring."""
     from lmjx.planner.transit import TransitPlanner, after_executing
+    from lmjx.planner.turned import TurnedEdges, turn_axis
     from lmjx.sim.realworld import SimulatedRealWorld
     from lmjx.sim.scenarios import sample_layout, scenario
 
@@ -114,7 +116,13 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
     for k, s in enumerate(record.steps):
         e = int(s["edge"])
         transits.set_scene(sc, obs.objects)
-        acts = transits.actions(bundle, np.array([e]), obs.robot_q, 1, came_from, trail)
+        turn = int(s.get("turn_deg", 0))  # an edge executed turned about the base joint (`turn_edges`)
+        axis = turn_axis(robot, map_file.failure) if turn else None
+        if axis is not None:
+            view = TurnedEdges(bundle, np.array([e]), np.radians([turn]), axis)
+            acts = transits.actions(view, np.array([0]), obs.robot_q, 1, came_from, trail)
+        else:
+            acts = transits.actions(bundle, np.array([e]), obs.robot_q, 1, came_from, trail)
         if not acts:
             if say is not None:
                 say(f"action {k + 1} (edge {e}) has no feasible transit in the replay: the replay stops there")
