@@ -64,5 +64,10 @@ def test_the_preflight_sums_per_stage_rates():
     # twice the cores: the kernels' stages take half; two GPUs: the edges' stages take half
     double = stage_seconds(work, "cpu", 1, 2 * cpu.cores, {})
     assert double["rollout"] == pytest.approx(cold["rollout"] / 2) and double["startup"] == cold["startup"]
+    # several chunks: the CPU's chunk threads run side by side
+    many = Work.of(40_000, cells=3000, attempts=10, restarts=8, ik_restarts=8, steps=100, chunk=16_384)
+    assert many.chunks == 3
+    side = stage_seconds(many, "cpu", 1, cpu.cores, {})
+    assert side["rollout"] == pytest.approx(cpu.overlap * many.edge_steps / cpu.edge_steps_per_s)
     one, two = (stage_seconds(work, "gpu", d, 16, {}) for d in (1, 2))
     assert two["rollout"] == pytest.approx(one["rollout"] / 2) and two["reach"] == one["reach"]

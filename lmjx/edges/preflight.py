@@ -43,8 +43,15 @@ class StageRates:
     index_states_per_s: float  # the spatial index (kept states rasterized)
     push_states_per_s: float  # the scenarios' push counts (kept states)
     write_states_per_s: float  # packing, writing and reading back the map, left after the edges
-    compile_s: dict[str, float]  # per stage: compiled here
-    cached_s: dict[str, float]  # per stage: loaded from JAX's persistent cache
+    # the edges' IK and rollouts' seconds times this where a build has several chunks: its
+    # chunk threads then run side by side (a CPU's kernels leave cores idle that the other
+    # thread's take)
+    overlap: float
+    # compiling, per stage (the reach map's, the edges', the index's, the push counts'): the
+    # wall time it adds to a build when compiled here (the edges' and the index's compile
+    # beside the reach map, and slow it), and when loaded from JAX's persistent cache
+    compile_s: dict[str, float]
+    cached_s: dict[str, float]
 
 
 # The one table of measured rates (benchmarks/RESULTS.md, "lmjx bench --sections build").
@@ -68,8 +75,9 @@ RATES = {
         index_states_per_s=34_000.0,
         push_states_per_s=19_000.0,
         write_states_per_s=160_000.0,
-        compile_s={"reach": 12.0, "edges": 35.0, "index": 20.0},
-        cached_s={"reach": 2.5, "edges": 5.0, "index": 5.5},
+        overlap=0.68,
+        compile_s={"reach": 32.0, "edges": 60.0, "index": 50.0, "push": 60.0},
+        cached_s={"reach": 2.5, "edges": 5.0, "index": 5.5, "push": 0.0},
     ),
     "gpu": StageRates(
         where="an H100",
@@ -81,8 +89,9 @@ RATES = {
         index_states_per_s=680_000.0,
         push_states_per_s=380_000.0,
         write_states_per_s=640_000.0,
-        compile_s={"reach": 7.0, "edges": 20.0, "index": 8.0},
-        cached_s={"reach": 1.0, "edges": 2.0, "index": 2.0},
+        overlap=1.0,
+        compile_s={"reach": 7.0, "edges": 20.0, "index": 8.0, "push": 8.0},
+        cached_s={"reach": 1.0, "edges": 2.0, "index": 2.0, "push": 0.0},
     ),
 }
 
@@ -96,11 +105,16 @@ class Work:
     ik_problems: int  # the edges' start IK problems
     edge_steps: float  # rollout steps
     states: float  # kept states (index, push counts, writing)
+    chunks: int = 1  # chunks of edges (each run by one chunk thread)
 
     @classmethod
-    def of(cls, n: int, cells: int, attempts: int, restarts: int, ik_restarts: int, steps: int) -> Work:
-        """The work of `n` sampled edges of `steps` steps over a reach map of `cells` cells."""
-        return cls(n, cells * attempts * restarts, n * ik_restarts, n * ROLLED_PER_EDGE * steps, n * STATES_PER_EDGE)
+    def of(
+        cls, n: int, cells: int, attempts: int, restarts: int, ik_restarts: int, steps: int, chunk: int = 16384
+    ) -> Work:
+        """The work of `n` sampled edges of `steps` steps, computed in chunks of `chunk` edges,
+        over a reach map of `cells` cells."""
+        edges = (n * ik_restarts, n * ROLLED_PER_EDGE * steps, n * STATES_PER_EDGE)
+        return cls(n, cells * attempts * restarts, *edges, chunks=-(-n // chunk))
 
     @classmethod
     def default(cls, n: int) -> Work:
@@ -152,17 +166,18 @@ def duration_text(s: float) -> str:
 def stage_seconds(work: Work, platform: str, devices: int, cores: int, cached: dict[str, bool | None]) -> dict:
     """Estimated seconds per stage of `work` on `platform` ("cpu" or an accelerator's) with
     `devices` accelerators or `cores` CPU cores; `cached`: per compile stage ("reach",
-    "edges", "index"), whether JAX's persistent cache holds its programs (None: unknown,
+    "edges", "index", "push"), whether JAX's persistent cache holds its programs (None: unknown,
     counted as compiled)."""
     gpu = platform != "cpu"
     r = RATES["gpu" if gpu else "cpu"]
     kernels = cores / r.cores if not gpu else 1.0  # the CPU's kernels use all its cores
     per_device = devices * kernels if gpu else kernels
+    side_by_side = r.overlap if work.chunks > 1 else 1.0
     return {
         "startup": r.startup_s,
         "reach": work.reach_problems / (r.reach_problems_per_s * kernels),
-        "ik": work.ik_problems / (r.ik_problems_per_s * per_device),
-        "rollout": work.edge_steps / (r.edge_steps_per_s * per_device),
+        "ik": side_by_side * work.ik_problems / (r.ik_problems_per_s * per_device),
+        "rollout": side_by_side * work.edge_steps / (r.edge_steps_per_s * per_device),
         "index": work.states / (r.index_states_per_s * per_device),
         "push": work.states / (r.push_states_per_s * kernels),
         "write": work.states / r.write_states_per_s,

@@ -229,7 +229,9 @@ def _build_map(
     if lead:
         check_writable(out, "map file")
         xs, ys = reach_cfg.grid()
-        work = Work.of(n, len(xs) * len(ys), reach_cfg.attempts, reach_cfg.restarts, config.ik_restarts, config.steps)
+        chunk = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
+        work = Work.of(n, len(xs) * len(ys), reach_cfg.attempts, reach_cfg.restarts, config.ik_restarts, config.steps,
+                       chunk)  # fmt: skip
         cached = _cached_stages(robot, failure, reach_cfg, kernel_sets[0])
         pre = preflight(n, out, devices, jax.default_backend(), work, cached)
         for line in pre.lines():
@@ -406,8 +408,8 @@ def _build_map(
 def _cached_stages(robot: Robot, failure: Failure, reach_cfg: ReachConfig, kernels: EdgeKernels) -> dict:
     """Per compile stage of the preflight, whether JAX's persistent cache holds its programs,
     looked up without compiling (`in_jax_cache`): the reach map's IK program, the edges' IK
-    and rollout programs; the index's programs, compiled beside the edges', are counted with
-    them.  None where it cannot tell; {} without a cache."""
+    and rollout programs; the index's and the push counts' programs, compiled by every build
+    of the edges, are counted with them.  None where it cannot tell; {} without a cache."""
     if cache_dir() is None:
         return {}
     reach_kernel = reach_ik(robot, failure, reach_cfg).kernel
@@ -415,7 +417,7 @@ def _cached_stages(robot: Robot, failure: Failure, reach_cfg: ReachConfig, kerne
     ik = reach if kernels.ik.kernel.placed == reach_kernel.placed else in_jax_cache(kernels.ik.kernel.lower()[0])
     rollout = in_jax_cache(kernels.rollout.lower()[0])
     edges = None if ik is None or rollout is None else ik and rollout
-    return {"reach": reach, "edges": edges, "index": edges}
+    return {"reach": reach, "edges": edges, "index": edges, "push": edges}
 
 
 def _compile_by_stage(
