@@ -333,6 +333,11 @@ def run_bench(args: argparse.Namespace) -> int:
                 ratios[f"gpu_greedy_scoring_{r['candidates']}_vs_c_mujoco_all_cores"] = r["speedup_vs_cpu"]
     if "agreement" in sections:
         report["agreement"] = bench_agreement(robot, args)
+    if "build" in sections:
+        from lmjx.bench.build import bench_build, build_sizes
+
+        flag = [] if robot.key == "panda" else ["--robot", robot.key]
+        report["build"] = bench_build(args.failure or bench_failure(robot), build_sizes(on_gpu, args.edges), flag)
     report["ratios"] = ratios
 
     if args.out:
@@ -354,6 +359,10 @@ def run_bench(args: argparse.Namespace) -> int:
             _print_planner(report["planner"])
     if "agreement" in report:
         _print_agreement(report["agreement"])
+    if "build" in report:
+        from lmjx.bench.build import print_build
+
+        print_build(report["build"])
     for k, v in ratios.items():
         print(f"  {k}: {v:,.1f}x")
     return 0
@@ -379,7 +388,7 @@ def _print_agreement(ag: dict) -> None:
         )
 
 
-SECTIONS = ("ik", "maps", "rollouts", "planner", "agreement")
+SECTIONS = ("ik", "maps", "rollouts", "planner", "agreement", "build")
 
 
 def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:

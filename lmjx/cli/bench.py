@@ -29,9 +29,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="what to time, comma separated: ik (lmjx vs pytorch_kinematics vs PyBullet), maps (whole "
         "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (Greedy scoring, the GPU "
         "simulator vs C MuJoCo on all cores; needs a map with edges), agreement (the simulator's choices "
-        "against C MuJoCo's over some 200 Greedy decisions; needs --maps with case1.h5 and case2.h5) "
-        "(default: ik,maps,rollouts,planner)",
+        "against C MuJoCo's over some 200 Greedy decisions; needs --maps with case1.h5 and case2.h5), build "
+        "(the user's build-map end to end, in a fresh process: seconds per stage, wall / kernel time, the "
+        "preflight's error) (default: ik,maps,rollouts,planner)",
     )
+    p.add_argument(
+        "--edges",
+        type=_positive_ints,
+        help="build: sampled edges per timed build, comma separated (default 100000,1000000 on a GPU, 10000 on a CPU)",
+    )
+    p.add_argument("--failure", help="build: the failure to build (default case2 where the robot has it)")
     p.add_argument("--maps", help="agreement: folder of the robot's preset maps (default maps, or maps/<robot>)")
     p.add_argument(
         "--agreement-seeds", type=_positive_int, default=12, help="agreement: trials per failure and scenario (12)"

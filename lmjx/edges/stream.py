@@ -43,7 +43,6 @@ import shutil
 import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +54,9 @@ from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, preset_progr
 from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter
+from lmjx.edges.preflight import DAY, Preflight, Work, preflight
+from lmjx.edges.preflight import duration_text as _duration
+from lmjx.edges.preflight import size_text as _size
 from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, start_cells
 from lmjx.errors import ConfigError, OutputPathError
 from lmjx.mapfile.read import load_map
@@ -64,75 +66,9 @@ from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachConfig, ReachResult, reach_ik, reach_map
 from lmjx.runtime import threadprof
 from lmjx.runtime.batching import backend, device_description
-from lmjx.runtime.cache import cache_dir
-from lmjx.runtime.cores import usable_cores
+from lmjx.runtime.cache import cache_dir, in_jax_cache
 from lmjx.runtime.fileio import check_writable
 from lmjx.runtime.progress import Progress
-
-# Measured rates for the preflight (benchmarks/RESULTS.md): edges per second after
-# compilation, per accelerator or per CPU core, and what the files take per sampled edge
-# (case 2: a quarter of the sampled edges are kept, 51 states each).
-RATES = {"gpu": 60_000.0, "cpu_core": 170.0}
-COMPILE_SECONDS = {"gpu": 40.0, "cpu": 60.0}
-MAP_BYTES_PER_EDGE = 620.0  # the finished map
-PARTIAL_BYTES_PER_EDGE = 900.0  # the chunks in <out>.partial (raw arrays; case 2: about 885)
-DAY = 86_400.0
-
-
-@dataclass
-class Preflight:
-    edges: int
-    map_bytes: float
-    disk_bytes: float  # partial chunks + the map, at the end of the build
-    seconds: float
-    free_bytes: int
-    devices: int
-    basis: str
-
-    def lines(self) -> list[str]:
-        return [
-            f"preflight: {self.edges:,} edges -> a map of about {_size(self.map_bytes)} "
-            f"({_size(self.disk_bytes)} of disk while it is built; {_size(self.free_bytes)} free), "
-            f"about {_duration(self.seconds)} ({self.basis})"
-        ]
-
-
-def _size(b: float) -> str:
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if b < 1000 or unit == "TB":
-            return f"{b:.0f} {unit}" if unit == "B" else f"{b:.1f} {unit}"
-        b /= 1000
-    return f"{b:.1f} TB"
-
-
-def _duration(s: float) -> str:
-    if s < 120:
-        return f"{s:.0f} s"
-    if s < 2 * 3600:
-        return f"{s / 60:.0f} min"
-    if s < 2 * DAY:
-        return f"{s / 3600:.1f} h"
-    return f"{s / DAY:.1f} days"
-
-
-def preflight(n: int, out: Path, devices: int, platform: str) -> Preflight:
-    """Estimated size and time of a build of n edges (before any work)."""
-    gpu = platform != "cpu"
-    cores = usable_cores()
-    rate = RATES["gpu"] * devices if gpu else RATES["cpu_core"] * cores
-    seconds = n / rate + COMPILE_SECONDS["gpu" if gpu else "cpu"]
-    where = f"an H100/H200 x {devices}" if gpu else f"a CPU core x {cores}"
-    basis = f"{rate:,.0f} edges/s, from rates measured on {where}"
-    parent = out.parent if str(out.parent) else Path(".")
-    return Preflight(
-        n,
-        n * MAP_BYTES_PER_EDGE,
-        n * (MAP_BYTES_PER_EDGE + PARTIAL_BYTES_PER_EDGE),
-        seconds,
-        shutil.disk_usage(parent).free,
-        devices,
-        basis,
-    )
 
 
 def partial_path(out: str | Path) -> Path:
@@ -268,6 +204,7 @@ def _build_map(
 
     from lmjx.runtime import sharding
 
+    t_start = time.perf_counter()
     reach_cfg.validate(robot)
     config.validate(robot)
     out = Path(out)
@@ -278,9 +215,25 @@ def _build_map(
     plan = build_plan(robot, failure, reach_cfg, config)
     if _kept(out, plan, overwrite, lead):
         return {"kept": True}
+    # One process with several devices: each device runs whole chunks of its own (its own
+    # programs, and host threads preparing and collecting its work), so that the host work
+    # scales with the devices too.  Several processes: every launch spread over all devices.
+    split = sharded and jax.process_count() == 1 and len(jax.local_devices()) > 1
+    half = reach_cfg.object_height / 2
+    if split:
+        kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=d, ik_chunk=reach_cfg.chunk)
+                       for d in jax.local_devices()]  # fmt: skip
+    else:
+        kernel_sets = [EdgeKernels(robot, failure, config, sharded, half, ik_chunk=reach_cfg.chunk)]
+    pre: Preflight | None = None
     if lead:
         check_writable(out, "map file")
-        pre = preflight(n, out, devices, jax.default_backend())
+        xs, ys = reach_cfg.grid()
+        chunk = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
+        work = Work.of(n, len(xs) * len(ys), reach_cfg.attempts, reach_cfg.restarts, config.ik_restarts, config.steps,
+                       chunk)  # fmt: skip
+        cached = _cached_stages(robot, failure, reach_cfg, kernel_sets[0])
+        pre = preflight(n, out, devices, jax.default_backend(), work, cached)
         for line in pre.lines():
             say(line)
         done_bytes = sum(f.stat().st_size for f in folder.iterdir()) if folder.is_dir() else 0
@@ -313,10 +266,6 @@ def _build_map(
             os.replace(tmp, plan_path)
         if (folder / "reach.h5").exists():
             reach = load_map(folder / "reach.h5", robot).reach
-    # One process with several devices: each device runs whole chunks of its own (its own
-    # programs, and host threads preparing and collecting its work), so that the host work
-    # scales with the devices too.  Several processes: every launch spread over all devices.
-    split = sharded and jax.process_count() == 1 and len(jax.local_devices()) > 1
     size = config.edges_per_chunk(devices) if jax.process_count() > 1 else config.edges_per_job()
     done = saved_chunks(folder) if lead else []
     todo = missing_ranges(done, n, size) if lead else []
@@ -336,12 +285,6 @@ def _build_map(
     else:
         has_reach = reach is not None
     device = device_description()
-    half = reach_cfg.object_height / 2
-    if split:
-        kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=d, ik_chunk=reach_cfg.chunk)
-                       for d in jax.local_devices()]  # fmt: skip
-    else:
-        kernel_sets = [EdgeKernels(robot, failure, config, sharded, half, ik_chunk=reach_cfg.chunk)]
     capsules = capsule_ends_kernel(robot)  # one per process: its compiling before this build is not this build's
     capsules_before = capsules.compile_seconds
     presets = None
@@ -429,15 +372,17 @@ def _build_map(
     edge_seconds = time.perf_counter() - t1 - compile_seconds
     summary = {"device": device, "devices": devices, "processes": jax.process_count()}
     stages = _compile_by_stage(robot, failure, reach_cfg, reach_compile, kernel_sets)
-    index_figures = index_totals(since=index_before)
-    # the index's: its capsule program and its passes' programs
-    stages["index"] = round(capsules.compile_seconds - capsules_before + index_figures.get("compile_seconds", 0.0), 4)
     if writer is not None:
         try:
             summary |= writer.finish(out, _totals(kernel_sets, stages["edges"]), edge_seconds, device)
         except BaseException as e:
             writer.abort(wait=not isinstance(e, KeyboardInterrupt))
             raise
+    # after the packers (which index the chunks: `finish` waits for them)
+    index_figures = index_totals(since=index_before)
+    # the index's: its capsule program and its passes' programs
+    stages["index"] = round(capsules.compile_seconds - capsules_before + index_figures.get("compile_seconds", 0.0), 4)
+    if writer is not None:
         summary["compile_by_stage"] = stages
         summary["reach_seconds"] = t_reach
         # from the first chunk to the finished file, compilation excluded
@@ -447,12 +392,32 @@ def _build_map(
         # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the
         # host, its programs' compilation (none where this process or the cache has them)
         summary["index"] = index_figures
+        # the estimate made before the build (`lmjx.edges.preflight`), and the build's wall time
+        # from this call to the finished file (the process's start not included)
+        if pre is not None:
+            summary["preflight"] = pre.summary()
+        summary["build_seconds"] = round(time.perf_counter() - t_start, 4)
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
     if background.presets is not None:
         background.finish(say)
         summary["compiled_for_later"] = background.presets.summary()
     return summary
+
+
+def _cached_stages(robot: Robot, failure: Failure, reach_cfg: ReachConfig, kernels: EdgeKernels) -> dict:
+    """Per compile stage of the preflight, whether JAX's persistent cache holds its programs,
+    looked up without compiling (`in_jax_cache`): the reach map's IK program, the edges' IK
+    and rollout programs; the index's and the push counts' programs, compiled by every build
+    of the edges, are counted with them.  None where it cannot tell; {} without a cache."""
+    if cache_dir() is None:
+        return {}
+    reach_kernel = reach_ik(robot, failure, reach_cfg).kernel
+    reach = in_jax_cache(reach_kernel.lower()[0])
+    ik = reach if kernels.ik.kernel.placed == reach_kernel.placed else in_jax_cache(kernels.ik.kernel.lower()[0])
+    rollout = in_jax_cache(kernels.rollout.lower()[0])
+    edges = None if ik is None or rollout is None else ik and rollout
+    return {"reach": reach, "edges": edges, "index": edges, "push": edges}
 
 
 def _compile_by_stage(
