@@ -88,7 +88,7 @@ def test_fused_scene_has_the_same_dynamics(robot):
         assert da.ncon == db.ncon
 
 
-def test_the_agreement_measure_rescores_as_greedy_does(robot, plan_map):
+def test_the_decision_measure_rescores_as_greedy_does(robot, plan_map):
     """The agreement test's measurement in its configuration (Greedy's rescoring `RESCORE`,
     the planner's score), on C MuJoCo where no GPU is: a simulator measured against itself
     agrees exactly (every pick, every target end, the rescored rollouts counted); the stiff
@@ -212,7 +212,7 @@ def test_overflowing_buffers_are_grown_and_the_batch_rolled_out_again(robot, can
 
 
 @pytest.mark.skipif(not CUDA, reason=f"the GPU simulator's agreement test needs a CUDA GPU: {NO_CUDA}")
-def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
+def test_gpu_simulator_agreement_with_c_mujoco_over_200_decisions(robot, tmp_path):
     """Over 200+ Greedy decisions (up to 64 candidates each) across both failures, the three
     scenarios and 12 trials each, from the trials' starts and after one and two random
     pushes, in the configuration the evaluation runs: both simulators with the planner's servo
