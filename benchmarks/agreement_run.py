@@ -1,19 +1,23 @@
 """The GPU simulator's agreement test (tests/test_simulate_gpu.py, 200+ Greedy decisions
 against C MuJoCo) outside pytest, on any Warp device: its out-of-sample decisions (maps of
-seed 2026, trial seeds 500-511, the three scenarios, depth 3, 64 candidates) measured by
-`lmjx.evaluation.agreement.measure`, the report written as JSON and its pass/fail against the
-thresholds set before the test's first out-of-sample run.  On a machine without a GPU
+seed 4049, trial seeds 700-711, the three scenarios, depth 3, 64 candidates) measured by
+`lmjx.evaluation.agreement.measure` in the evaluation's configuration (servo model "robot",
+Greedy's rescoring), the report written as JSON and its pass/fail against the thresholds set
+with those seeds, before the test's first run.  On a machine without a GPU
 (`--device cpu`, Warp's CPU device: float32 as on the GPU, the same picks where checked)
 it is a stand-in for the GPU's run, not the test itself.
 
     python benchmarks/agreement_run.py MAPS_DIR --out agree.json [--device cpu] [--seeds N]
 
 MAPS_DIR: case1.h5 and case2.h5 built with `lmjx build-map --failure caseN --edges 100000
---seed 2026`.  The decisions need no simulator and take most of the time (about 16 s each on
-one core): a machine without a GPU may build them for one with,
+--seed 4049`.  The decisions need no simulator and take most of the time (about 16 s each on
+one core): a machine without a GPU may build them for one with, or a GPU machine in a run of
+its own (the test reads them from LMJX_TEST_DECISIONS),
 
     python benchmarks/agreement_run.py MAPS_DIR --save-decisions decisions.pkl.gz   # no GPU needed
-    python benchmarks/agreement_run.py --decisions decisions.pkl.gz --out agree.json  # on the GPU
+    python benchmarks/agreement_run.py MAPS_DIR --decisions decisions.pkl.gz --out agree.json  # on the GPU
+
+(the maps are read either way: Greedy's score weighs the path by their push counts)
 
 (the file: a gzip'd pickle of `lmjx.evaluation.agreement.Decision`s, with the maps' seed and sizes;
 pickle runs code when read: load only files you made).
@@ -28,9 +32,11 @@ from pathlib import Path
 
 from lmjx.errors import LmjxError
 from lmjx.evaluation.agreement import (
+    FIRST_SEED,
     MAP_SEED,
     MIN_DECISIONS,
     OUT_OF_SAMPLE_SEEDS,
+    SERVO,
     load_decisions,
     out_of_sample,
     out_of_sample_decisions,
@@ -68,19 +74,15 @@ def setup(prog: str, failures: tuple[str, ...], maps_dir: Path | None, warp: boo
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument(
-        "maps", type=Path, nargs="?", help="folder of case1.h5 and case2.h5 (seed 2026); not with --decisions"
-    )
+    ap.add_argument("maps", type=Path, help="folder of case1.h5 and case2.h5 (seed 4049)")
     ap.add_argument("--out", type=Path, help="the report (JSON)")
     ap.add_argument("--device", default=None, help="Warp device: cpu, or cuda:0 (default: the first CUDA device)")
-    ap.add_argument("--seeds", type=int, default=OUT_OF_SAMPLE_SEEDS, help="trial seeds from 500 (default: the test's)")
+    ap.add_argument("--seeds", type=int, default=OUT_OF_SAMPLE_SEEDS, help="trial seeds from 700 (default: the test's)")
     ap.add_argument("--save-decisions", type=Path, help="build the decisions only (no simulator) and write them here")
     ap.add_argument("--decisions", type=Path, help="measure decisions built before (--save-decisions)")
     args = ap.parse_args()
     if not 1 <= args.seeds <= OUT_OF_SAMPLE_SEEDS:
-        sys.exit(f"agreement_run: --seeds must lie in 1-{OUT_OF_SAMPLE_SEEDS} (the test's seeds from 500)")
-    if (args.maps is None) == (args.decisions is None):
-        sys.exit("agreement_run: give the maps' folder or --decisions (one of them)")
+        sys.exit(f"agreement_run: --seeds must lie in 1-{OUT_OF_SAMPLE_SEEDS} (the test's seeds from {FIRST_SEED})")
     if args.save_decisions is None and args.out is None:
         sys.exit("agreement_run: --out is needed (or --save-decisions, to build the decisions only)")
     if args.save_decisions is not None and args.decisions is not None:
@@ -110,8 +112,11 @@ def main() -> None:
     report = out_of_sample(
         robot,
         maps,
-        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "gpu", gpu_config=cfg) for s in (1, 2, 3)},
-        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "cpu") for s in (1, 2, 3)},
+        {
+            s: make_simulator(robot, resolve_task(s, robot, "hard"), "gpu", gpu_config=cfg, servo=SERVO)
+            for s in (1, 2, 3)
+        },
+        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "cpu", servo=SERVO) for s in (1, 2, 3)},
         args.seeds,
         built=built,
     )

@@ -860,6 +860,21 @@ def test_greedy_leaves_the_target_closer_than_random(robot, plan_map):
     assert not any(f for _, _, f in pairs)
 
 
+def test_a_random_pick_in_greedys_place_fails_the_sign_test(robot, plan_map):
+    """The planning-quality test's negative control: with Greedy's choice among its simulated
+    candidates replaced by a uniformly random one (a stream seeded once, so the same picks
+    every run), the same 30 decision states and the same sign test do not find it better
+    than Random's pick (p >= 0.01): the test's pass comes from Greedy's choice, not from
+    its candidates or the test itself.  Rescoring is off here (a random pick ignores the
+    scores it would average), so Greedy simulates only its 8 candidates."""
+    picks = np.random.default_rng(4242)
+    pairs = paired_decisions(robot, plan_map, greedy_pick=lambda s, _rng: int(picks.integers(len(s))), rescore_top=0)
+    wins = sum(g < r - 1e-3 for g, r, _ in pairs)
+    losses = sum(g > r + 1e-3 for g, r, _ in pairs)
+    assert len(pairs) == 30 and wins + losses >= 10, (wins, losses, pairs)  # enough decided pairs to tell
+    assert sign_test_p(wins, losses) >= 0.01, (wins, losses, pairs)
+
+
 def test_a_blocked_way_to_park_goes_around_the_objects(robot, plan_map):
     """Where the straight line to the park pose is blocked (a cube placed where the arm
     passes halfway), `to_park` finds a dog-leg (some joints first, then the rest) that ends

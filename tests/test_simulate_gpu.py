@@ -1,10 +1,11 @@
 """The GPU simulator (MuJoCo Warp) against C MuJoCo, and the two model facts it relies on.
 
-The model facts need only C MuJoCo and run everywhere.  The simulator tests need warp-lang:
-without it they are skipped (CI installs no GPU package); with it and no CUDA GPU they run
-on Warp's CPU device on short actions; with a CUDA GPU they run there on whole actions, and
-the agreement over 200 Greedy decisions (the acceptance test of the GPU simulator) runs too,
-out of sample: on maps and decision seeds chosen before it was first run and never used
+The model facts need only C MuJoCo and run everywhere.  The simulator tests need warp-lang
+(requirements-test.lock installs it: `make test` runs them): with no CUDA GPU they run on
+Warp's CPU device on short actions, with one on whole actions.  The agreement over 200+ Greedy
+decisions (the acceptance test of the GPU simulator) runs only on a CUDA GPU, in the
+configuration the evaluation runs (servo model "robot", Greedy's rescoring) and out of sample:
+on maps and decision seeds chosen before its first run in that configuration and never used
 before (`lmjx.evaluation.agreement.MAP_SEED`, `FIRST_SEED`; benchmarks/RESULTS.md).
 """
 
@@ -19,7 +20,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lmjx.evaluation.agreement import MAP_SEED  # chosen before the agreement test's first run
+from lmjx.evaluation.agreement import FIRST_SEED, MAP_SEED, SERVO  # chosen before the agreement test's first run
 from lmjx.model.failure import parse_failure
 from lmjx.planner.clearance import park_pose
 from lmjx.sim.cpu import CpuSimulator
@@ -87,6 +88,32 @@ def test_fused_scene_has_the_same_dynamics(robot):
         assert da.ncon == db.ncon
 
 
+def test_the_decision_measure_rescores_as_greedy_does(robot, plan_map):
+    """The agreement test's measurement in its configuration (Greedy's rescoring `RESCORE`,
+    the planner's score), on C MuJoCo where no GPU is: a simulator measured against itself
+    agrees exactly (every pick, every target end, the rescored rollouts counted); the stiff
+    "playback" servo measured against the "robot" servo it stands in for does not (its target
+    ends differ), so the measurement sees what the servo changes."""
+    from lmjx.evaluation.agreement import RESCORE, decision_states, measure, planner_fields
+    from lmjx.evaluation.trial import make_simulator
+    from lmjx.mapfile.read import load_map
+
+    m = load_map(plan_map)
+    decisions = decision_states(robot, {"case2": m}, (1,), 1, 1, 16, first_seed=5)  # one decision: seconds
+    task = resolve_task(1, robot, "hard")
+    fields = planner_fields(robot, {"case2": m}, (1,))
+    ref = {1: make_simulator(robot, task, "cpu", servo=SERVO)}
+    same = measure(robot, decisions, ref, ref, RESCORE, fields)
+    assert same["decisions"] == len(decisions) == 1 and same["rescore"] == {"top": 8, "draws": 8}
+    assert same["same_choice"] == 1.0 and same["choice_gap_m"]["max"] == 0.0
+    rescored = sum(r["rescored_ends"] for r in same["per_decision"])
+    assert rescored == 7 * same["candidates"]  # every candidate (fewer than 8 each) from 7 redrawn starts
+    assert same["target_end_diff_m"]["n"] == same["candidates"] + rescored and same["target_end_diff_m"]["max"] == 0
+    stiff = {1: make_simulator(robot, task, "cpu", servo="playback")}
+    other = measure(robot, decisions, stiff, ref, RESCORE, fields)
+    assert other["target_end_diff_m"]["max"] > 1e-3 and other["non_finite"] == 0
+
+
 # ---------------------------------------------------------------- the simulator itself
 
 try:
@@ -95,8 +122,11 @@ try:
     HAVE_WARP = True
 except ImportError:
     HAVE_WARP = False
-needs_warp = pytest.mark.skipif(not HAVE_WARP, reason="warp-lang is not installed (GPU extra: pip install -e '.[gpu]')")
-CUDA = HAVE_WARP and warp_problem() is None
+needs_warp = pytest.mark.skipif(
+    not HAVE_WARP, reason="warp-lang is not installed (requirements-test.lock, or pip install -e '.[test]')"
+)
+NO_CUDA = warp_problem()  # why the GPU simulator cannot run on a CUDA GPU here (None: it can)
+CUDA = NO_CUDA is None
 
 
 def _same_results(a: np.ndarray, b: np.ndarray) -> None:
@@ -181,18 +211,28 @@ def test_overflowing_buffers_are_grown_and_the_batch_rolled_out_again(robot, can
     _same_results(out, GpuSimulator(scene_f, config=_sim_config()).simulate(q0, objects, acts[:2]))
 
 
-@pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU and warp-lang (the agreement test of the GPU simulator)")
-def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
-    """Over 200+ Greedy decisions (64 candidates each) across both failures, the three
+@pytest.mark.skipif(not CUDA, reason=f"the GPU simulator's agreement test needs a CUDA GPU: {NO_CUDA}")
+def test_gpu_simulator_agreement_with_c_mujoco_over_200_decisions(robot, tmp_path):
+    """Over 200+ Greedy decisions (up to 64 candidates each) across both failures, the three
     scenarios and 12 trials each, from the trials' starts and after one and two random
-    pushes: the GPU simulator picks C MuJoCo's action, or one within 1 cm of the best by C
-    MuJoCo's score, in at least 95 % of them; target ends median at most 0.1 mm from C
-    MuJoCo's; nothing non-finite.  Out of sample: the maps' seed (`MAP_SEED`) and the
-    decisions' seeds (`FIRST_SEED`) were never used before, and the thresholds were set
-    before the first run (the in-sample figures were 94.4 % and 0.8 µm, H100, 2026-11-22).
-    Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5 built with --seed 2026) or built
-    here.  LMJX_TEST_REPORT: write the figures there (JSON)."""
-    from lmjx.evaluation.agreement import out_of_sample
+    pushes, in the configuration the evaluation runs: both simulators with the planner's servo
+    model "robot" (`SERVO`), the pick Greedy's rescored choice (its 8 best candidates again from
+    7 redrawn starts, `RESCORE`) by the planner's score.  The GPU simulator picks C MuJoCo's
+    action, or one within 1 cm of C MuJoCo's best by C MuJoCo's rescored score, in at least
+    95 % of them; target ends (every candidate, and the rescored ones both simulated) a median
+    at most 0.1 mm from C MuJoCo's; nothing non-finite.
+
+    Out of sample: maps of seed 4049 (`MAP_SEED`), decisions from trial seeds 700-711
+    (`FIRST_SEED`; "real" worlds 10,700-10,711), and these thresholds were chosen before the
+    test's first run in this configuration and must not be changed after it; no earlier run
+    used those seeds.
+
+    Maps: LMJX_TEST_MAPS (a folder with case1.h5 and case2.h5 built with `lmjx build-map
+    --failure caseN --edges 100000 --seed 4049`) or built here.  LMJX_TEST_DECISIONS: the
+    decisions built before from those maps (`benchmarks/agreement_run.py MAPS
+    --save-decisions FILE`, which takes the host's cores: the longest part) instead of building
+    them here.  LMJX_TEST_REPORT: write the figures there (JSON)."""
+    from lmjx.evaluation.agreement import load_decisions, out_of_sample
     from lmjx.evaluation.evaluate import load_maps
     from lmjx.evaluation.trial import make_simulator
 
@@ -210,14 +250,23 @@ def test_gpu_simulator_decides_as_c_mujoco_over_200_decisions(robot, tmp_path):
     maps = load_maps(robot, ("case1", "case2"), folder)
     for f, m in maps.items():
         assert m.edges.config.seed == MAP_SEED and m.reach.config.seed == MAP_SEED, f"{f}: not the out-of-sample map"
+    built = None
+    if "LMJX_TEST_DECISIONS" in os.environ:
+        blob = load_decisions(os.environ["LMJX_TEST_DECISIONS"])  # refuses other seeds' decisions
+        assert blob["maps"] == {f: {"seed": MAP_SEED, "edges": int(m.edges.n_edges)} for f, m in maps.items()}
+        assert blob["first_seed"] == FIRST_SEED
+        built = (blob["decisions"], blob["seconds"], blob["workers"])
+    tasks = {s: resolve_task(s, robot, "hard") for s in (1, 2, 3)}
     report = out_of_sample(
         robot,
         maps,
-        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "gpu") for s in (1, 2, 3)},
-        {s: make_simulator(robot, resolve_task(s, robot, "hard"), "cpu") for s in (1, 2, 3)},
+        {s: make_simulator(robot, tasks[s], "gpu", servo=SERVO) for s in tasks},
+        {s: make_simulator(robot, tasks[s], "cpu", servo=SERVO) for s in tasks},
+        built=built,
     )
     if "LMJX_TEST_REPORT" in os.environ:
         Path(os.environ["LMJX_TEST_REPORT"]).write_text(json.dumps(report, indent=1))
+    assert (report["servo"], report["rescore"]) == ("robot", {"top": 8, "draws": 8})
     assert report["decisions"] >= 200
     assert report["non_finite"] == 0
     assert report["target_end_diff_m"]["median"] <= 1e-4, report["target_end_diff_m"]
