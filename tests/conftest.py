@@ -273,11 +273,38 @@ def tiny_atlas(tmp_path_factory) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def _shared_reach(maps: Maps, spec: str) -> Iterator[list[bool]]:
+    """Within: a build's reach map of failure `spec` with `maps`' robot and config is the run's
+    own `maps[spec]` (computed once for the run: the map is deterministic) instead of a second
+    computation of the same map; any other reach map is computed as usual.  Yields a list that
+    holds True once the shared map was used."""
+    import lmjx.edges.stream
+
+    real, used = lmjx.edges.stream.reach_map, []
+
+    def reach_map(failure, config=None, robot=None, progress=False):
+        shared = maps[spec]
+        if config == maps.config and getattr(robot, "key", None) == maps.robot.key and failure == shared.failure:
+            used.append(True)
+            return shared
+        return real(failure, config, robot=robot, progress=progress)
+
+    lmjx.edges.stream.reach_map = reach_map
+    try:
+        yield used
+    finally:
+        lmjx.edges.stream.reach_map = real
+
+
 @pytest.fixture(scope="session")
-def plan_map(tmp_path_factory) -> Path:
-    """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` in this process."""
+def plan_map(tmp_path_factory, table1: Maps) -> Path:
+    """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` in this process on
+    the Panda's default case-2 reach map of `table1` (the same map: computed once)."""
     path = tmp_path_factory.mktemp("plan_map") / "case2.h5"
-    cli("build-map", *PLAN_MAP, "--out", path).ok()
+    with _shared_reach(table1, "case2") as used:
+        cli("build-map", *PLAN_MAP, "--out", path).ok()
+    assert used, "PLAN_MAP's reach map is no longer table1's case2 map"
     return path
 
 
