@@ -103,7 +103,7 @@ def clearance_kernel(robot: Robot):
     from lmjx.runtime.batching import ChunkedKernel, backend
 
     unroll = backend() != "cpu"
-    chunk = 1 << 16 if backend() != "cpu" else 4096
+    chunk = 1 << 16 if backend() != "cpu" else 256  # CPU: the planner's calls hold a few hundred configurations
 
     def one(q):
         return arm_clearance(robot.arm, q, unroll)
