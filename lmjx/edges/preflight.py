@@ -58,12 +58,12 @@ class StageRates:
 # cpu: the 2-core machine, `lmjx build-map --json` of 10,000 case-2 edges and 20,000 case-1
 # edges with the programs cached, and of 10,000 case-2 edges with an empty cache (compile_s),
 # its cores shared with other work (load average 8-15: an idle machine builds 2-3x faster).
-# gpu: an H100, from RESULTS.md's rows: the reach map's 240,000 problems in 0.06 s, the
-# edges' IK (8 restarts) of 1,000,000 edges under 1 s, rollouts 15-17 M edge-steps/s,
-# compiling 24-37 s for a build; the spatial index and the push counts (on the device) and
-# the writing (on the host) have no GPU figures yet: the CPU's rates times 20 (the index, the
-# push counts: a tenth of the rollouts' GPU/CPU ratio, about 200) and times 4 (the writing:
-# the host's cores), to be replaced by an H100's `lmjx bench --sections build`.
+# gpu: one H200 with 16 host cores, `lmjx bench --sections build` (100,000 and 1,000,000 case-2
+# edges, programs cached: the index 4.2 M states/s, the push counts 1.6 M states/s, packing and
+# writing 0.9 M states/s on the host, 3.7 s of cache loads, 4.6 s of start-up) and a cold
+# 100,000-edge build (compile_s: the edges' include the other presets' programs compiled ahead
+# for later builds, which the build waits for); the reach map and the edges' IK and rollouts
+# from RESULTS.md's kernel rows.  The host stages scale with the host's cores, not the GPUs.
 RATES = {
     "cpu": StageRates(
         where="a 2-core CPU",
@@ -80,18 +80,18 @@ RATES = {
         cached_s={"reach": 2.5, "edges": 5.0, "index": 5.5, "push": 0.0},
     ),
     "gpu": StageRates(
-        where="an H100",
+        where="an H200",
         cores=16,
-        startup_s=10.0,
+        startup_s=4.6,
         reach_problems_per_s=4_000_000.0,
         ik_problems_per_s=8_000_000.0,
         edge_steps_per_s=15_000_000.0,
-        index_states_per_s=680_000.0,
-        push_states_per_s=380_000.0,
-        write_states_per_s=640_000.0,
+        index_states_per_s=4_200_000.0,
+        push_states_per_s=1_500_000.0,
+        write_states_per_s=900_000.0,
         overlap=1.0,
-        compile_s={"reach": 7.0, "edges": 20.0, "index": 8.0, "push": 8.0},
-        cached_s={"reach": 1.0, "edges": 2.0, "index": 2.0, "push": 0.0},
+        compile_s={"reach": 10.0, "edges": 45.0, "index": 7.0, "push": 8.0},
+        cached_s={"reach": 1.0, "edges": 1.8, "index": 0.9, "push": 0.0},
     ),
 }
 
