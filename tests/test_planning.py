@@ -469,7 +469,9 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
     scene = build_scene(robot, sc)
     sim = CpuSimulator(scene)
     top, draws = 3, 3
-    cfg = PlannerConfig(asm="greedy", greedy_candidates=6, rescore_top=top, rescore_draws=draws)
+    cfg = PlannerConfig(  # the map's own edges: the candidates rebuilt below
+        asm="greedy", greedy_candidates=6, rescore_top=top, rescore_draws=draws, turn_edges=False
+    )
     planner = Planner(robot, m.failure, m.reach, m.edges, sc, sim, cfg)
     batch = Planner(robot, m.failure, m.reach, m.edges, sc, _BatchPreferringCpu(scene), cfg,
                     transits=planner.transits)  # fmt: skip
