@@ -28,10 +28,12 @@ def python_blocks(page: str) -> list[str]:
 
 
 @pytest.fixture
-def docs_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, small_map: Path, tiny_atlas: Path) -> Path:
+def docs_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, plan_map: Path, tiny_atlas: Path) -> Path:
+    """A folder like the one `make run` leaves: maps/case2.h5 a case-2 map of the default
+    settings (plan_map: 6,000 edges where make run samples 10,000), and an atlas."""
     maps = tmp_path / "maps"
     maps.mkdir()
-    shutil.copy(small_map, maps / "case2.h5")
+    shutil.copy(plan_map, maps / "case2.h5")
     shutil.copy(tiny_atlas, maps / "atlas.h5")
     monkeypatch.chdir(tmp_path)
     return tmp_path
