@@ -18,7 +18,6 @@ import codecs
 import contextlib
 import io
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -248,48 +247,21 @@ def ik_batch(robot, failure, settings=None, chunk: int | None = None):
     return IKBatch(robot, failure, sites, settings or config.ik_settings(), chunk or default_chunk())
 
 
-def _built_once(tmp_path_factory, name: str, filename: str, build: Callable[[Path], None]) -> Path:
-    """The file `build(path)` writes, made once for the whole run: in this process's temporary
-    folder, or, when pytest-xdist runs the suite on several workers, in a folder the workers
-    share (the first to come builds it under a file lock; the others wait and read it).  The
-    maps are read only, so the workers may read one file at once."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker is None:
-        path = tmp_path_factory.mktemp(name) / filename
-        build(path)
-        return path
-    from filelock import FileLock
-
-    root = tmp_path_factory.getbasetemp().parent / "shared"  # the run's folder, above each worker's
-    root.mkdir(exist_ok=True)
-    folder = root / name
-    path = folder / filename
-    with FileLock(str(root / f"{name}.lock")):
-        if not (folder / ".built").exists():
-            if folder.exists():  # an attempt that failed: start again
-                shutil.rmtree(folder)
-            folder.mkdir()
-            build(path)
-            (folder / ".built").touch()
-    return path
-
-
 @pytest.fixture(scope="session")
 def tiny_map(tmp_path_factory) -> Path:
     """The four-joint test arm's map (TINY_MAP), built by `lmjx build-map` in this process."""
-    return _built_once(tmp_path_factory, "tiny_map", "tiny.h5", lambda p: cli("build-map", *TINY_MAP, "--out", p).ok())
+    path = tmp_path_factory.mktemp("tiny_map") / "tiny.h5"
+    cli("build-map", *TINY_MAP, "--out", path).ok()
+    return path
 
 
 @pytest.fixture(scope="session")
 def small_map(tmp_path_factory) -> Path:
     """The shared case-2 map (SMALL_MAP), built by `lmjx build-map` in this process with
     its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
-
-    def build(path: Path) -> None:
-        profile = {"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}
-        cli("build-map", *SMALL_MAP, "--out", path, env=profile).ok()
-
-    return _built_once(tmp_path_factory, "small_map", "case2.h5", build)
+    path = tmp_path_factory.mktemp("small_map") / "case2.h5"
+    cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
+    return path
 
 
 @pytest.fixture(scope="session")
@@ -329,13 +301,11 @@ def _shared_reach(maps: Maps, spec: str) -> Iterator[list[bool]]:
 def plan_map(tmp_path_factory, table1: Maps) -> Path:
     """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` in this process on
     the Panda's default case-2 reach map of `table1` (the same map: computed once)."""
-
-    def build(path: Path) -> None:
-        with _shared_reach(table1, "case2") as used:
-            cli("build-map", *PLAN_MAP, "--out", path).ok()
-        assert used, "PLAN_MAP's reach map is no longer table1's case2 map"
-
-    return _built_once(tmp_path_factory, "plan_map", "case2.h5", build)
+    path = tmp_path_factory.mktemp("plan_map") / "case2.h5"
+    with _shared_reach(table1, "case2") as used:
+        cli("build-map", *PLAN_MAP, "--out", path).ok()
+    assert used, "PLAN_MAP's reach map is no longer table1's case2 map"
+    return path
 
 
 def _programs_ahead() -> list[Callable[[], None]]:
