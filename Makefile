@@ -29,7 +29,7 @@ run: $(RUN_STAMP)
 
 test: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks examples
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests/test_planning.py tests  # two workers, a file each; the longest file first
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests  # two workers, a file each: most tests run one core's Python
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks examples
