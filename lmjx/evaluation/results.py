@@ -100,14 +100,25 @@ def check_conditions(held: Results, new: dict[str, Any], allow_mixed: bool, wher
     `held` where their runs' conditions differ, unless `allow_mixed`."""
     if allow_mixed:
         return
-    for run in held.runs_used():
-        diff = differences(run, new)
-        if diff:
-            raise MixedRunsError(
-                f"{where} holds {_trials(run['trials_held'])} run under other conditions: "
-                f"{differences_text(diff, 'there', 'here')}; use another --out, or --allow-mixed to pool them (the "
-                "report then says so)"
-            )
+    found = _first_difference(held.runs_used(), [new])
+    if found is not None:
+        run, _, diff = found
+        raise MixedRunsError(
+            f"{where} holds {_trials(run['trials_held'])} run under other conditions: "
+            f"{differences_text(diff, 'there', 'here')}; use another --out, or --allow-mixed to pool them (the "
+            "report then says so)"
+        )
+
+
+def _first_difference(held: list[dict[str, Any]], new: list[dict[str, Any]]) -> tuple[dict, dict, dict] | None:
+    """The first (held run, new run, their `differences`) where a run of `new` ran under
+    other conditions than one of `held`; None where all agree."""
+    for run in new:
+        for old in held:
+            diff = differences(old, run)
+            if diff:
+                return old, run, diff
+    return None
 
 
 def trial_key(record: dict[str, Any]) -> tuple:
@@ -125,16 +136,13 @@ def merge(parts: list[tuple[str, Results]], allow_mixed: bool = False) -> Result
     merged = Results()
     where: dict[tuple, tuple[int, str]] = {}  # trial -> (its place in merged.trials, the part it came from)
     for name, part in parts:
-        if not allow_mixed:
-            for run in part.runs_used():
-                for held in merged.runs_used():
-                    diff = differences(held, run)
-                    if diff:
-                        raise MixedRunsError(
-                            f"{name} holds {_trials(run['trials_held'])} run under other conditions than those "
-                            f"before it: {differences_text(diff, 'before', 'its')}; give --allow-mixed to pool them "
-                            "(the report then says so)"
-                        )
+        found = None if allow_mixed else _first_difference(merged.runs_used(), part.runs_used())
+        if found is not None:
+            _, run, diff = found
+            raise MixedRunsError(
+                f"{name} holds {_trials(run['trials_held'])} run under other conditions than those before it: "
+                f"{differences_text(diff, 'before', 'its')}; give --allow-mixed to pool them (the report then says so)"
+            )
         for r in part.trials:
             k = trial_key(r)
             if k not in where:
