@@ -125,6 +125,11 @@ class MapWriter:
         # packers' seconds (summed), the final wait, the content digest (`mapfile.digest`), moving the map
         # to `out`, removing the partial folder (and "push": the push counts' seconds)
         self.parts = {"pack": 0.0, "save": 0.0, "drain": 0.0, "digest": 0.0, "replace": 0.0, "remove_partial": 0.0}
+        # the push counts, summed over the chunks as they are packed (a resumed build, whose
+        # saved chunks are not packed here, computes them from the map at the end)
+        from lmjx.planner.pushbuild import BuildPushCounts  # (here: the writing process never needs the planner)
+
+        self.push = None if done else BuildPushCounts(robot, reach.failure, reach)
         job = _Job(folder, reach, config, robot.nq, n, sorted(done + units), set(done), writer_threads(), self.tmp)
         # the map's head (root attributes, /robot, /reach) written here: the writing process
         # adds /edges, and needs neither the robot's model nor JAX's runtime
@@ -173,8 +178,11 @@ class MapWriter:
         chunk = pack_chunk(self.reach, self.config, self.robot, samples, idx, rolled)
         t1 = time.perf_counter()
         chunkfile.save(self.folder, chunk)
+        t2 = time.perf_counter()
+        if self.push is not None:
+            self.push.add(chunk.length, chunk.q)
         self.parts["pack"] += t1 - t0  # summed over the packers: CPU seconds
-        self.parts["save"] += time.perf_counter() - t1
+        self.parts["save"] += t2 - t1
         return chunk.start, chunk.stop
 
     def _feed(self) -> None:
@@ -242,7 +250,9 @@ class MapWriter:
         self.parts["drain"] = t1 - t0  # the writing left when the rollouts end
         # the push counts of the robot's built-in scenarios, here where JAX computes (the
         # states through the device once), added to the map before it is moved to `out`
-        push = store_push_counts(self.tmp, self.robot)
+        push = store_push_counts(self.tmp, self.robot, summed=self.push)
+        if self.push is not None:  # the packers' share, summed over them
+            self.parts["push_chunks"] = self.push.seconds
         t1 = time.perf_counter()
         self.parts["push"] = push["push_seconds"]
         store_digest(self.tmp)  # the map read back once, so that evaluations need not

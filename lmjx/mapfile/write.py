@@ -9,6 +9,7 @@ from __future__ import annotations
 import collections
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -36,6 +37,9 @@ from lmjx.model.robot import ROBOTS, Robot, as_robot, load_robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
+
+if TYPE_CHECKING:
+    from lmjx.planner.pushbuild import BuildPushCounts
 
 try:  # Intel ISA-L's deflate: standard deflate streams (any HDF5 reads them), 6-10x faster
     from isal import isal_zlib as _deflate  # than zlib on these floats, sizes within 3 %
@@ -396,10 +400,14 @@ def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -
     f.attrs["contents"] = contents
 
 
-def store_push_counts(path: str | Path, robot: Robot, progress: bool = False) -> dict:
+def store_push_counts(
+    path: str | Path, robot: Robot, progress: bool = False, summed: BuildPushCounts | None = None
+) -> dict:
     """Compute the push counts of the map at `path` (reach map and edges written) and add
     them to it (`/edges/push`); figures back (seconds, entries).  Runs where JAX computes
-    (the map's states go through the device once, `lmjx.planner.pushsamples`)."""
+    (the map's states go through the device once, `lmjx.planner.pushsamples`), unless
+    `summed` (`lmjx.planner.pushbuild.BuildPushCounts`) holds them, summed over the map's
+    chunks while it was built: then only their keys are computed here."""
     from lmjx.mapfile.read import load_map
     from lmjx.planner.clearance import FIXED_MARGIN, MIN_EDGE_STATES
     from lmjx.planner.pushfield import COUNTS_VERSION, HEIGHT, MAX_ANGLE, builtin_counts
@@ -408,7 +416,10 @@ def store_push_counts(path: str | Path, robot: Robot, progress: bool = False) ->
     t0 = time.perf_counter()
     with load_map(path, robot, lazy=True) as m:
         assert m.edges is not None and m.reach is not None
-        entries = builtin_counts(robot, m.failure, m.edges, m.reach, progress)
+        if summed is not None:
+            entries = summed.entries(m.edges)
+        else:
+            entries = builtin_counts(robot, m.failure, m.edges, m.reach, progress)
     seconds = time.perf_counter() - t0
     attrs = {"platform": backend(), "counts_version": COUNTS_VERSION, "max_angle_deg": MAX_ANGLE, "height_m": HEIGHT,
              "fixed_margin_m": FIXED_MARGIN, "min_edge_states": MIN_EDGE_STATES, "seconds": seconds}  # fmt: skip

@@ -35,9 +35,11 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -177,17 +179,48 @@ def bundle_samples(robot: Robot, bundle: Bundle, reach: ReachResult, height: flo
     return memo[key]
 
 
+@dataclasses.dataclass
+class FixedCut:
+    """A scenario's fixed obstacles as `_prefixes` checks edges against them: the transit
+    planner's scene (the start check) and the box-clearance program of its fixed boxes, made
+    once per scenario and shared by the threads that count chunks of a build (one at a time:
+    the planner keeps state)."""
+
+    planner: TransitPlanner
+    fixed: np.ndarray  # the scene's fixed boxes
+    boxes: Any  # `clearance.box_kernel` of them
+    lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
+
+
+def fixed_cut(robot: Robot, failure: Failure, sc: Scenario) -> FixedCut | None:
+    """The scenario's `FixedCut`; None for a scenario without fixed obstacles."""
+    if not sc.fixed:
+        return None
+    tp = TransitPlanner(robot, failure, batched=True)
+    tp.set_scene(sc, far_objects(sc), acting=False)
+    fixed = np.nonzero(~tp.scene.movable)[0]
+    return FixedCut(tp, fixed, box_kernel(robot, tp.scene.padded(EDGE_BOXES, fixed)))
+
+
 def _group_hits(
-    s: PushSamples, robot: Robot, failure: Failure, bundle: Bundle, sc: Scenario, field: GoalField, max_angle: float
+    s: PushSamples,
+    robot: Robot,
+    failure: Failure,
+    bundle: Bundle,
+    sc: Scenario,
+    field: GoalField,
+    max_angle: float,
+    cut: FixedCut | None = None,
 ) -> np.ndarray:
     """(G,) whether each (edge, cell) group of samples holds one that pushes toward the
-    goal before the edge's cut at a fixed obstacle, its start clear of them."""
+    goal before the edge's cut at a fixed obstacle, its start clear of them (`cut`: the
+    scenario's `fixed_cut`, made here when not given)."""
     if not len(s):
         return np.zeros(0, bool)
     ok = _toward(s, field, max_angle)
     if sc.fixed:
         edge = s.sample_edge()
-        prefix = _prefixes(s, edge, ok, robot, failure, bundle, sc)
+        prefix = _prefixes(s, edge, ok, bundle, cut or fixed_cut(robot, failure, sc))
         ok &= s.k + 1 < prefix[edge]
     return np.logical_or.reduceat(ok, s.group_start)
 
@@ -219,9 +252,7 @@ def _toward(s: PushSamples, field: GoalField, max_angle: float) -> np.ndarray:
     return out
 
 
-def _prefixes(
-    s: PushSamples, edge: np.ndarray, ok: np.ndarray, robot: Robot, failure: Failure, bundle: Bundle, sc: Scenario
-) -> np.ndarray:
+def _prefixes(s: PushSamples, edge: np.ndarray, ok: np.ndarray, bundle: Bundle, cut: FixedCut) -> np.ndarray:
     """(E,) how many states of each edge an action executes in the scenario, for the edges
     with a sample that passes `ok` (0 for the others): those before its first state within
     FIXED_MARGIN of a fixed obstacle (`cut_at_fixed`), 0 where that leaves fewer than
@@ -237,17 +268,16 @@ def _prefixes(
     cand = np.nonzero(kmax >= 0)[0]
     if not len(cand):
         return prefix
-    tp = TransitPlanner(robot, failure, batched=True)
-    tp.set_scene(sc, far_objects(sc), acting=False)
-    fixed = np.nonzero(~tp.scene.movable)[0]
-    clear = tp.scene_slacks(np.asarray(bundle.q_start[cand], np.float64))[:, fixed].min(axis=1) >= 0
-    cand = cand[clear]
+    fixed = cut.fixed
+    with cut.lock:
+        slacks = cut.planner.scene_slacks(np.asarray(bundle.q_start[cand], np.float64))
+    cand = cand[slacks[:, fixed].min(axis=1) >= 0]
     need = np.minimum(np.maximum(kmax[cand] + 2, MIN_EDGE_STATES), lengths[cand])
     owner = np.repeat(np.arange(len(cand)), need)
     k = np.arange(len(owner)) - np.repeat(np.cumsum(need) - need, need)
     q = _state_rows(bundle, offsets[cand][owner] + k)
-    boxes = box_kernel(robot, tp.scene.padded(EDGE_BOXES, fixed))
-    clearance = boxes.run(q)["box_clearance"][:, : len(fixed)].min(axis=1)
+    with cut.lock:
+        clearance = cut.boxes.run(q)["box_clearance"][:, : len(fixed)].min(axis=1)
     cut = cut_at_fixed(clearance, owner, k, lengths[cand])
     cut[cut < MIN_EDGE_STATES] = 0  # such an edge is never offered (`edge_prefixes`)
     prefix[cand] = cut

@@ -126,20 +126,20 @@ def _runs(lengths: np.ndarray, rows: int) -> list[tuple[int, int]]:
 
 
 def push_samples(
-    robot: Robot, bundle: Bundle, reach: ReachResult, height: float, progress: bool = False
+    robot: Robot, bundle: Bundle, reach: ReachResult, height: float, progress: bool = False, workers: int | None = None
 ) -> PushSamples:
     """The push samples (module docstring) of the bundle's edges that keep at least
     MIN_EDGE_STATES states, over the reach map's cells.  Runs of edges go through the device
-    and the host's tests on `threads()` threads (each reads its run, launches it and takes
-    its samples: numpy, the reads and JAX's calls leave the interpreter lock).  `progress`:
-    a bar on stderr, per edge."""
+    and the host's tests on `workers` threads (default `threads()`; each reads its run,
+    launches it and takes its samples: numpy, the reads and JAX's calls leave the
+    interpreter lock).  `progress`: a bar on stderr, per edge."""
     lengths = np.asarray(bundle.length, np.int64)
     rows = max(_rows(), int(lengths.max(initial=1)))
     run = _Run(robot, bundle, reach, height, rows)
     bar = Progress(total=len(lengths), desc="push samples", enabled=progress, unit="edge")
     runs = _runs(lengths, rows) if run.nt and len(lengths) else []
     parts = []
-    with ThreadPoolExecutor(threads(), thread_name_prefix="lmjx-push") as pool:
+    with ThreadPoolExecutor(workers or threads(), thread_name_prefix="lmjx-push") as pool:
         for part, (e0, e1) in zip(pool.map(lambda r: run(*r), runs), runs, strict=True):
             parts.append(part)
             bar.update(e1 - e0)
