@@ -414,11 +414,14 @@ def store_push_counts(
     from lmjx.runtime.batching import backend
 
     t0 = time.perf_counter()
-    with load_map(path, robot, lazy=True) as m:
-        assert m.edges is not None and m.reach is not None
-        if summed is not None:
-            entries = summed.entries(m.edges)
-        else:
+    if summed is not None:
+        from lmjx.planner.pushbuild import KeyedEdges
+
+        with h5py.File(path, "r") as f:
+            entries = summed.entries(KeyedEdges.read(f["edges"]))
+    else:
+        with load_map(path, robot, lazy=True) as m:
+            assert m.edges is not None and m.reach is not None
             entries = builtin_counts(robot, m.failure, m.edges, m.reach, progress)
     seconds = time.perf_counter() - t0
     attrs = {"platform": backend(), "counts_version": COUNTS_VERSION, "max_angle_deg": MAX_ANGLE, "height_m": HEIGHT,

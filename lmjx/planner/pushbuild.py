@@ -9,7 +9,7 @@ samples (`pushsamples.push_samples`) and each built-in scenario's pass over them
 (`pushfield._group_hits`) are those of the same edges in the whole map, so the summed counts
 are the whole map's, bit for bit (tests/test_pushfield.py compares them with the
 reference's).  At the end only the keys are computed from the file (`entries`: they hash
-the map's per-edge arrays), so the states are not read again.
+the map's per-edge arrays), so neither the states nor the index are read again.
 """
 
 from __future__ import annotations
@@ -18,9 +18,11 @@ import threading
 import time
 from dataclasses import dataclass
 
+import h5py
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.edges.bundle import Bundle, BundleConfig
+from lmjx.mapfile.schema import config_from_attrs
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.planner.pushfield import (
@@ -54,6 +56,25 @@ class ChunkStates:
         offset = np.zeros(len(length), np.int64)
         offset[1:] = np.cumsum(length, dtype=np.int64)[:-1]
         return cls(offset, length, q, q[offset])
+
+
+@dataclass(frozen=True)
+class KeyedEdges:
+    """What `pushfield.counts_key` reads of a map's edges: its settings and per-edge arrays
+    (read from the written file, without its states or index)."""
+
+    config: BundleConfig
+    length: np.ndarray
+    q_start: np.ndarray
+    twist: np.ndarray
+    duration: np.ndarray
+    site: np.ndarray
+
+    @classmethod
+    def read(cls, edges: h5py.Group) -> KeyedEdges:
+        """From a map's /edges group."""
+        arrays = (edges[name][...] for name in ("length", "q_start", "twist", "duration", "site"))
+        return cls(config_from_attrs(BundleConfig, dict(edges.attrs)), *arrays)
 
 
 class BuildPushCounts:
@@ -97,15 +118,15 @@ class BuildPushCounts:
             self.edges += len(states.length)
             self.seconds += time.perf_counter() - t0
 
-    def entries(self, bundle: Bundle) -> list[StoredCounts]:
+    def entries(self, bundle: Bundle | KeyedEdges) -> list[StoredCounts]:
         """The summed counts under the planner's keys (`counts_key` of the whole map's
-        `bundle`, its per-edge arrays read; the states are not)."""
+        edges: `KeyedEdges.read` of the written map)."""
         if self.edges != len(bundle.length):
             raise RuntimeError(f"push counts summed over {self.edges} edges of a map of {len(bundle.length)}")
         ny, nx = self.reach.labels.shape
         return [
             StoredCounts(
-                counts_key(self.robot, bundle, self.reach, sc, field),
+                counts_key(self.robot, bundle, self.reach, sc, field),  # type: ignore[arg-type]
                 number,
                 tasks,
                 self.counts[i].astype(np.int32).reshape(ny, nx),
