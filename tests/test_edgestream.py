@@ -297,3 +297,38 @@ def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_pa
         w.finish(tmp_path / "b.h5", kernels, 0.0, "cpu")
     w.abort()
     assert not (tmp_path / "b.h5").exists()
+
+
+def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkeypatch):
+    """`write_index_edges` places every chunk's (cell, edge) pairs without sorting: against
+    a stable sort of all pairs by (cell, edge), over several cell ranges (a small
+    INDEX_PAIRS) and chunks with cells absent, on random sorted unique pairs."""
+    from lmjx.edges import mapwriter
+    from lmjx.edges.chunk import EdgeChunk
+
+    rng = np.random.default_rng(7)
+    n_cells, ranges, first, cells, edges = 50, [], [], [], []
+    e0 = 0
+    for k in range(5):
+        n_edges = int(rng.integers(1, 40))
+        pairs = np.unique(rng.integers(0, [n_cells, n_edges], size=(int(rng.integers(0, 300)), 2)), axis=0)
+        if k == 2:
+            pairs = pairs[pairs[:, 0] % 3 != 0]  # cells this chunk never reaches
+        arrays = {name: np.zeros(0, np.int32) for name in EdgeChunk.ARRAYS}
+        arrays |= {"index_cell": pairs[:, 0].astype(np.int32), "index_edge": pairs[:, 1].astype(np.int32)}
+        chunkfile.save(tmp_path, EdgeChunk(start=100 * k, stop=100 * k + 100, rolled_out=0, states_evaluated=0,
+                                           **arrays))  # fmt: skip
+        ranges.append((100 * k, 100 * k + 100))
+        first.append(e0)
+        cells.append(pairs[:, 0])
+        edges.append(pairs[:, 1] + e0)
+        e0 += n_edges
+    cell, edge = np.concatenate(cells), np.concatenate(edges)
+    want = edge[np.lexsort((edge, cell))]
+    offset = np.zeros(n_cells + 1, np.int64)
+    offset[1:] = np.cumsum(np.bincount(cell, minlength=n_cells))
+    monkeypatch.setattr(mapwriter, "INDEX_PAIRS", 97)
+    with h5py.File(tmp_path / "index.h5", "w") as f:
+        ds = f.create_dataset("edges", (len(want),), np.int32)
+        mapwriter.write_index_edges(ds, tmp_path, ranges, first, offset)
+        assert np.array_equal(ds[...], want)

@@ -56,7 +56,7 @@ from lmjx.runtime.cores import usable_cores
 # Sampled edges packed (and saved to the partial folder) at a time; not part of the result
 # (LMJX_PACK_EDGES overrides it: the tests use small units).
 PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
-INDEX_PAIRS = 32 * 2**20  # spatial-index pairs sorted at a time when assembling (256 MB)
+INDEX_PAIRS = 64 * 2**20  # spatial-index pairs placed at a time when assembling (256 MB of edge ids)
 READ_AHEAD = 4  # chunk files the writing process reads ahead
 # the chunk arrays the writing process appends (the index pairs are read at the end)
 APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
@@ -468,22 +468,28 @@ def write_index_edges(
     ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
 ) -> None:
     """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
-    range at most INDEX_PAIRS pairs, read from every saved chunk)."""
+    range at most INDEX_PAIRS pairs, read from every saved chunk).  Each chunk's pairs are
+    sorted by (cell, edge) and the chunks come in edge order, so every pair's place is
+    known without sorting: its cell's start (`offset`), plus the pairs earlier chunks put
+    there, plus its rank among its chunk's pairs of that cell."""
     n_cells = len(offset) - 1
     c0 = 0
     while c0 < n_cells:
         c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
         c1 = min(c1, n_cells)
-        cells, edges = [], []
+        out = np.empty(int(offset[c1] - offset[c0]), np.int32)
+        fill = (offset[c0:c1] - offset[c0]).astype(np.int64)  # each cell's next free place in `out`
         for (a, b), e0 in zip(ranges, first_edge, strict=True):
             pairs, _ = chunkfile.read(folder, a, b, ("index_cell", "index_edge"))
             cell, edge = pairs["index_cell"], pairs["index_edge"]
-            sel = (cell >= c0) & (cell < c1)
-            cells.append(cell[sel])
-            edges.append(edge[sel].astype(np.int64) + e0)
-        cell = np.concatenate(cells)
-        edge = np.concatenate(edges)
-        order = np.argsort(cell, kind="stable")  # chunks come in edge order, each sorted by (cell, edge)
-        if len(order):
-            ds[offset[c0] : offset[c1]] = edge[order].astype(np.int32)
+            lo, hi = np.searchsorted(cell, [c0, c1])
+            if hi == lo:
+                continue
+            c = cell[lo:hi].astype(np.int64) - c0
+            count = np.bincount(c, minlength=c1 - c0)
+            rank = np.arange(hi - lo) - (np.cumsum(count) - count)[c]
+            out[fill[c] + rank] = edge[lo:hi] + np.int32(e0)
+            fill += count
+        if len(out):
+            ds[offset[c0] : offset[c1]] = out
         c0 = c1
