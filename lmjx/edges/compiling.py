@@ -12,6 +12,12 @@ persistent cache does not already hold them (`lmjx.runtime.cache.in_jax_cache`);
 failure ('J2=0.3,J4=-1.5') compiles its own the first time it is built on a machine.  They
 are compiled, never run, and not kept in memory (the cache keeps them): host work beside
 the build's device work.
+
+They are the programs the build of that failure makes (`EdgeKernels`: sharded over one
+device in all is not sharded), placed on the default device; every program is lowered for
+arrays placed on a device (`lmjx.runtime.batching.ChunkedKernel`), and a GPU's cache key
+leaves the device out, so the same cache entries serve a build split over several GPUs of
+one process (each device's programs load from them).
 """
 
 from __future__ import annotations
