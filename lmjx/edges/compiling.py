@@ -30,6 +30,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from lmjx.edges.bundle import BundleConfig
@@ -126,6 +127,24 @@ def _yield_cores() -> None:
         os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + 10))
     except OSError:
         pass
+
+
+def first_then_together(steps: list[Callable[[], object]]) -> Callable[[], None]:
+    """One step: the first of `steps` (the first device's programs), then the others in
+    threads of their own (the other devices', the same programs placed elsewhere: in JAX's
+    persistent cache once the first is compiled, so that they are loaded side by side rather
+    than compiled again each); the first error is raised."""
+
+    def run() -> None:
+        if not steps:
+            return
+        steps[0]()
+        if len(steps) > 1:
+            with ThreadPoolExecutor(len(steps) - 1, thread_name_prefix="lmjx-compile") as pool:
+                for done in [pool.submit(step) for step in steps[1:]]:
+                    done.result()
+
+    return run
 
 
 _RUNNING: weakref.WeakSet[BackgroundCompile] = weakref.WeakSet()
