@@ -34,7 +34,7 @@ from lmjx.edges.sampling import EdgeKernels, launch_sizes
 from lmjx.model.failure import parse_failure
 from lmjx.reach.reachability import reach_config, reach_ik
 from lmjx.runtime.batching import ChunkedKernel
-from lmjx.runtime.cache import in_jax_cache
+from lmjx.runtime.cache import in_jax_cache, jax_cache_key
 
 ROLLOUT_LAUNCH_GPU = 1 << 17  # edges per rollout launch on an accelerator (BundleConfig.kernel_chunk)
 IK_LAUNCH_GPU = 1 << 19  # IK problems per launch on an accelerator (default_chunk)
@@ -48,12 +48,13 @@ def accelerator(monkeypatch):
 
 
 def _programs(robot, spec: str, edges: int, seed: int, build_chunk: int | None, sharded: bool = False) -> list:
-    """The keys of the programs a build makes: the reach map's IK, the edges' IK and rollout."""
+    """The programs a build makes (their keys and devices): the reach map's IK, the edges' IK
+    and rollout."""
     failure = parse_failure(spec, robot)
     reach_cfg = reach_config(robot, seed=seed)
     config = BundleConfig(edges=edges, seed=seed, build_chunk=build_chunk, interaction_points=robot.default_ips)
     ks = EdgeKernels(robot, failure, config, sharded, reach_cfg.object_height / 2, ik_chunk=reach_cfg.chunk)
-    return [reach_ik(robot, failure, reach_cfg).kernel.key, ks.ik.kernel.key, ks.rollout.key]
+    return [reach_ik(robot, failure, reach_cfg).kernel.placed, ks.ik.kernel.placed, ks.rollout.placed]
 
 
 def test_a_build_of_any_size_and_seed_makes_the_same_programs(robot, accelerator):
@@ -67,8 +68,10 @@ def test_a_build_of_any_size_and_seed_makes_the_same_programs(robot, accelerator
     assert edges_ik == reach  # the edges' starts share the reach map's IK program
     assert IK_LAUNCH_GPU in reach and ROLLOUT_LAUNCH_GPU in rollout
     assert ("unroll_checks=True" in repr(reach)) and ("unroll_checks=True" in repr(rollout))  # accelerator settings
-    # sharded over processes (one device here): a fixed launch too
-    assert _programs(robot, "case2", 10_000, 0, None, True) == _programs(robot, "case2", 3_000_000, 5, 500, True)
+    # sharded (`lmjx build-map`'s default) over one device in all: the one-device programs, the
+    # start IK the reach map's, which is what the presets compile for later builds
+    assert _programs(robot, "case2", 10_000, 0, None, True) == small
+    assert _programs(robot, "case2", 3_000_000, 5, 500, True) == small
     assert _programs(robot, "case1", 10_000, 0, None) != small  # lock angles are constants of the programs
 
 
@@ -91,9 +94,28 @@ def test_the_presets_compiled_for_later_builds(robot, ur5e, accelerator):
     warm = preset_programs(robot, parse_failure("case2", robot), reach_cfg, config, reach_cfg.object_height / 2)
     assert [(spec, stage) for spec, stage, _ in warm] == [("none", "ik"), ("none", "rollout"), ("case1", "ik"),
                                                           ("case1", "rollout")]  # fmt: skip
-    keys = [k.key for _, _, k in warm]
-    assert keys[2:] == _programs(robot, "case1", 1_000_000, 0, None)[1:]
+    keys = [k.placed for _, _, k in warm]
+    assert keys[2:] == _programs(robot, "case1", 1_000_000, 0, None, sharded=True)[1:]  # the command's default
     assert keys[:2] == _programs(robot, "none", 100_000, 4, None)[1:]
+
+
+def test_the_presets_are_the_programs_a_build_compiles(robot):
+    """By JAX's own persistent-cache key: the case2 programs a build of none compiles for
+    later builds are those a build of case2 compiles (another edge count, seed and chunking,
+    sharded as `lmjx build-map` is by default, on this one device), also placed on a device
+    given (as each device's of a build split over several: one program for all of them)."""
+    reach_cfg = reach_config(robot)
+    half = reach_cfg.object_height / 2
+    config = BundleConfig(interaction_points=robot.default_ips)
+    warm = preset_programs(robot, parse_failure("none", robot), reach_cfg, config, half)
+    later = {stage: kernel for spec, stage, kernel in warm if spec == "case2"}
+    case2 = parse_failure("case2", robot)
+    other = BundleConfig(edges=7_000, seed=9, build_chunk=700, interaction_points=robot.default_ips)
+    build = EdgeKernels(robot, case2, other, True, half, ik_chunk=reach_cfg.chunk)
+    placed = EdgeKernels(robot, case2, other, False, half, device=jax.local_devices()[0], ik_chunk=reach_cfg.chunk)
+    for stage, kernels in (("ik", (build.ik.kernel, placed.ik.kernel)), ("rollout", (build.rollout, placed.rollout))):
+        keys = [jax_cache_key(k.lower()[0]) for k in (later[stage], *kernels)]
+        assert keys[0] is not None and keys == [keys[0]] * 3, stage
 
 
 class _Out(NamedTuple):

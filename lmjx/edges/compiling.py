@@ -12,6 +12,12 @@ persistent cache does not already hold them (`lmjx.runtime.cache.in_jax_cache`);
 failure ('J2=0.3,J4=-1.5') compiles its own the first time it is built on a machine.  They
 are compiled, never run, and not kept in memory (the cache keeps them): host work beside
 the build's device work.
+
+They are the programs the build of that failure makes (`EdgeKernels`: sharded over one
+device in all is not sharded), placed on the default device; every program is lowered for
+arrays placed on a device (`lmjx.runtime.batching.ChunkedKernel`), and a GPU's cache key
+leaves the device out, so the same cache entries serve a build split over several GPUs of
+one process (each device's programs load from them).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from lmjx.edges.bundle import BundleConfig
@@ -120,6 +127,24 @@ def _yield_cores() -> None:
         os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid) + 10))
     except OSError:
         pass
+
+
+def first_then_together(steps: list[Callable[[], object]]) -> Callable[[], None]:
+    """One step: the first of `steps` (the first device's programs), then the others in
+    threads of their own (the other devices', the same programs placed elsewhere: in JAX's
+    persistent cache once the first is compiled, so that they are loaded side by side rather
+    than compiled again each); the first error is raised."""
+
+    def run() -> None:
+        if not steps:
+            return
+        steps[0]()
+        if len(steps) > 1:
+            with ThreadPoolExecutor(len(steps) - 1, thread_name_prefix="lmjx-compile") as pool:
+                for done in [pool.submit(step) for step in steps[1:]]:
+                    done.result()
+
+    return run
 
 
 _RUNNING: weakref.WeakSet[BackgroundCompile] = weakref.WeakSet()

@@ -487,9 +487,17 @@ def _next_device() -> jax.Device | None:
 
 
 def warm_index(robot: Robot, nx: int, ny: int, cell: float) -> None:
-    """Compile the index programs of a reach grid on every device `arm_index_pairs` uses."""
-    for device in index_devices():
-        arm_index(robot, nx, ny, cell, device).compile()
+    """Compile the index programs of a reach grid on every device `arm_index_pairs` uses:
+    the first device's, then the others' side by side (the same programs placed elsewhere,
+    which JAX's persistent cache then holds: loaded, not compiled again each)."""
+    first, *others = index_devices()
+    arm_index(robot, nx, ny, cell, first).compile()
+    if others:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(len(others), thread_name_prefix="lmjx-compile") as pool:
+            for done in [pool.submit(arm_index(robot, nx, ny, cell, d).compile) for d in others]:
+                done.result()
 
 
 def arm_index_pairs(

@@ -103,11 +103,20 @@ def launch_sizes(config: BundleConfig, sharded: bool = False) -> tuple[int | Non
     return (kchunk * config.ik_restarts if sharded else None), kchunk
 
 
+def sharded_launch(sharded: bool, device=None) -> bool:
+    """Whether a build's launches are split over devices (`ChunkedKernel`'s `sharded`): asked
+    for, on no device of its own, and over more than one device."""
+    from lmjx.runtime import sharding
+
+    return sharded and device is None and sharding.device_count() > 1
+
+
 class EdgeKernels:
     """The start IK and the rollout programs of one failure's edges, made once per build
     with launch sizes that depend on neither the number of edges nor the seed
     (`launch_sizes`: every chunk of every build reuses them).  `sharded` splits every launch
-    over all devices of all processes; `device` runs them on that device alone.
+    over all devices of all processes (over one device in all: the unsharded programs);
+    `device` runs them on that device alone.
 
     The start IK is the Reach-Ability map's own program where it can be (not sharded): the
     same sites (the TCP first, then the interaction points: an edge's point `which` is IK
@@ -131,6 +140,11 @@ class EdgeKernels:
         self.config = config
         self.sites = tuple(robot.interaction_points[name] for name in config.interaction_points)
         self.ik_sites = (robot.tcp_site, *self.sites)
+        # sharded over one device in all (a one-GPU build, sharded by default): the
+        # one-device programs, so that the start IK is the reach map's program, the one the
+        # presets compile for later builds (`lmjx.edges.compiling`), not one of a launch of
+        # its own that no other build compiles (`sharded_launch`)
+        sharded = sharded_launch(sharded, device)
         sharded_ik, roll_chunk = launch_sizes(config, sharded)
         self.ik = IKBatch(
             robot,

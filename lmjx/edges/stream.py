@@ -50,7 +50,7 @@ import numpy as np
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
 from lmjx.edges.chunkfile import NAME, saved_chunks
-from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, preset_programs
+from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, first_then_together, preset_programs
 from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter
@@ -301,7 +301,7 @@ def _build_map(
     index_before = index_totals()
     background = BackgroundCompile(
         [
-            *(ks.warm for ks in kernel_sets),
+            first_then_together([ks.warm for ks in kernel_sets]),  # each device's: one program for all
             capsules.compile,
             lambda: warm_index(robot, len(xs), len(ys), reach_cfg.cell),  # on the grid's size only
         ],

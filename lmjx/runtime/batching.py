@@ -93,6 +93,11 @@ def fetch(arrays: Sequence[jax.Array]) -> list[np.ndarray]:
     return [np.asarray(a) for a in arrays]
 
 
+def default_device() -> jax.Device:
+    """The device JAX places an array on when given none (its default device)."""
+    return jax.device_put(np.zeros((), np.int8)).devices().pop()
+
+
 def device_description() -> str:
     dev = jax.devices()[0]
     kind = getattr(dev, "device_kind", "") or ""
@@ -120,7 +125,8 @@ class ChunkedKernel:
         process; else every row comes back and the kept ones are selected on the host (a
         CPU's device memory is the host's: nothing to spare; several processes gather whole
         outputs), and the program is the one of a kernel with nothing kept.
-      device: run on this device (not sharded); by default JAX's default device.
+      device: run on this device (not sharded); by default JAX's default device (the same
+        program, placed there: `placed` tells them apart within the process).
     """
 
     def __init__(
@@ -141,6 +147,12 @@ class ChunkedKernel:
         # one device in all: the one-device program itself (the same numbers), which an
         # export in the cache spares tracing
         sharded = sharded and sharding.device_count() > 1 and device is None
+        if not sharded and device is None:
+            # placed on the default device, as on any other: a program lowered for arrays
+            # placed on a device differs from one lowered for arrays placed nowhere, and a
+            # GPU's persistent-cache key leaves out which device, so that one cache entry
+            # serves this program on every device (a build's devices, later builds' too)
+            device = default_device()
         self.device = device
         self._lock = threading.Lock()  # several threads may share a kernel: one builds it
         self.sharded = sharded

@@ -12,8 +12,8 @@ variable `LMJX_CACHE_DIR`, `$XDG_CACHE_HOME/lmjx`, `~/.cache/lmjx`.  `off` turns
 caching off (JAX then compiles every run; Warp keeps its own default cache).  A
 `JAX_COMPILATION_CACHE_DIR` the user set is left alone.  Nothing here compiles anything;
 `in_jax_cache` tells whether a lowered program is in JAX's persistent cache without
-compiling it (what a build needs to compile the programs of later builds only where they
-are missing: `lmjx.edges.compiling`).
+compiling it (`jax_cache_key`: the key it is kept under), what a build needs to compile
+the programs of later builds only where they are missing (`lmjx.edges.compiling`).
 """
 
 from __future__ import annotations
@@ -76,12 +76,13 @@ def configure_warp() -> None:
         wp.config.kernel_cache_dir = str(Path(text) / "warp")
 
 
-def in_jax_cache(lowered: Any) -> bool | None:
-    """Whether JAX's persistent compilation cache holds the program `lowered` (a
-    `jax.stages.Lowered` of one jitted function) compiled, without compiling it: the cache
-    key JAX's compiler would compute for it, looked up.  None when it cannot tell (no
-    persistent cache, or a JAX whose internals differ from those this reads: JAX has no
-    public call for it); callers then compile, which loads a cached program anyway."""
+def jax_cache_key(lowered: Any) -> str | None:
+    """The key under which JAX's persistent compilation cache keeps the program `lowered` (a
+    `jax.stages.Lowered` of one jitted function) compiled, computed as JAX's compiler does,
+    without compiling it.  None when it cannot tell (no persistent cache, or a JAX whose
+    internals differ from those this reads: JAX has no public call for it).  On a GPU the
+    key leaves out which device the program runs on (JAX strips the device assignment), so
+    one entry serves every device of a kind; on the CPU it does not."""
     try:
         import numpy as np
         from jax._src import compiler
@@ -97,9 +98,21 @@ def in_jax_cache(lowered: Any) -> bool | None:
         options = pxla.create_compile_options(
             low._hlo, args["tuple_args"], to_inputs, to_outputs, args["backend"], dev, dict(low._compiler_options_kvs)
         )
-        key = compiler._get_cache_key(options, args["backend"], low._hlo, dev)
-        if key is None:
-            return None
-        return bool(compiler._is_executable_in_cache(args["backend"], key))
+        return compiler._get_cache_key(options, args["backend"], low._hlo, dev)
+    except Exception:  # another JAX's internals
+        return None
+
+
+def in_jax_cache(lowered: Any) -> bool | None:
+    """Whether JAX's persistent compilation cache holds the program `lowered` compiled,
+    without compiling it: its key (`jax_cache_key`) looked up.  None when it cannot tell;
+    callers then compile, which loads a cached program anyway."""
+    key = jax_cache_key(lowered)
+    if key is None:
+        return None
+    try:
+        from jax._src import compiler
+
+        return bool(compiler._is_executable_in_cache(lowered._lowering.compile_args["backend"], key))
     except Exception:  # another JAX's internals
         return None
