@@ -283,6 +283,7 @@ def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_pa
     # a message it does not expect
     (tmp_path / "a").mkdir()
     w = MapWriter(tmp_path / "a", reach, config, robot, 1500, [], [(0, 1500)])
+    assert w.job_sent.wait(60)  # (the feeder hands the job over first)
     w.to_writer.send(("bogus",))
     w.proc.wait(timeout=120)
     with pytest.raises(RuntimeError, match="got 'bogus' before every chunk") as info:
@@ -300,10 +301,10 @@ def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_pa
 
 
 def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkeypatch):
-    """`write_index_edges` places every chunk's (cell, edge) pairs without sorting: against
+    """`mapappend.write_index_edges` places every chunk's (cell, edge) pairs without sorting: against
     a stable sort of all pairs by (cell, edge), over several cell ranges (a small
     INDEX_PAIRS) and chunks with cells absent, on random sorted unique pairs."""
-    from lmjx.edges import mapwriter
+    from lmjx.edges import mapappend
     from lmjx.edges.chunk import EdgeChunk
 
     rng = np.random.default_rng(7)
@@ -327,8 +328,30 @@ def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkey
     want = edge[np.lexsort((edge, cell))]
     offset = np.zeros(n_cells + 1, np.int64)
     offset[1:] = np.cumsum(np.bincount(cell, minlength=n_cells))
-    monkeypatch.setattr(mapwriter, "INDEX_PAIRS", 97)
+    monkeypatch.setattr(mapappend, "INDEX_PAIRS", 97)
     with h5py.File(tmp_path / "index.h5", "w") as f:
         ds = f.create_dataset("edges", (len(want),), np.int32)
-        mapwriter.write_index_edges(ds, tmp_path, ranges, first, offset)
+        mapappend.write_index_edges(ds, tmp_path, ranges, first, offset)
         assert np.array_equal(ds[...], want)
+
+
+def test_the_writing_process_starts_light_and_ends_unused():
+    """lmjx.edges.mapappend: the writing process's program imports neither JAX nor the robot's
+    model (it starts while the build computes its reach map, and its first chunk must not wait
+    for it); one never handed its job ends when the build's pipe closes, or when stopped."""
+    import subprocess
+    import sys
+
+    from lmjx.edges.mapwriter import WriterProcess
+
+    code = "import lmjx.edges.mapappend, sys; print([m for m in ('jax', 'mujoco', 'kernels') if m in sys.modules])"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "[]"
+    p = WriterProcess()
+    p.to_writer.close()
+    assert p.proc.wait(timeout=60) == 0
+    p.stop()
+    p = WriterProcess()
+    p.stop()
+    assert p.proc.returncode is not None
+    p.stop()  # (again: nothing)

@@ -27,11 +27,14 @@ import json
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lmjx.edges.chunk import EdgeChunk
 from lmjx.errors import LmjxError
+
+if TYPE_CHECKING:  # (the map-writing process reads chunk files without JAX: `mapappend`)
+    from lmjx.edges.chunk import EdgeChunk
 
 try:
     from isal.isal_zlib import crc32  # 3x zlib's
@@ -60,7 +63,7 @@ def save(folder: Path, chunk: EdgeChunk) -> Path:
     """A packed chunk into `folder`, atomically; its path back."""
     path = chunk_path(folder, chunk.start, chunk.stop)
     tmp = folder / f".{path.name}.{os.getpid()}.tmp"
-    arrays = {k: np.ascontiguousarray(getattr(chunk, k)) for k in EdgeChunk.ARRAYS}
+    arrays = {k: np.ascontiguousarray(getattr(chunk, k)) for k in chunk.ARRAYS}
     # offsets relative to the end of the (padded) header
     table, at = {}, 0
     for k, a in arrays.items():
@@ -88,11 +91,15 @@ def _header(fh) -> tuple[dict, int]:
     return head, _up(16 + n)
 
 
-def read(folder: Path, a: int, b: int, names: tuple[str, ...] = EdgeChunk.ARRAYS) -> tuple[dict, dict]:
-    """The arrays `names` of a saved chunk (checked against their CRC-32), and its header.
-    A damaged file is removed and reported (ChunkFileError): the same command again
+def read(folder: Path, a: int, b: int, names: tuple[str, ...] | None = None) -> tuple[dict, dict]:
+    """The arrays `names` (None: all, `EdgeChunk.ARRAYS`) of a saved chunk (checked against
+    their CRC-32), and its header.  A damaged file is removed and reported (ChunkFileError): the same command again
     computes that chunk anew.  One the file system fails to read is reported, and kept."""
     path = chunk_path(folder, a, b)
+    if names is None:
+        from lmjx.edges.chunk import EdgeChunk
+
+        names = EdgeChunk.ARRAYS
     try:
         with open(path, "rb") as fh:
             head, base = _header(fh)
@@ -129,6 +136,8 @@ def _nbytes(entry: list) -> int:
 
 
 def load(folder: Path, a: int, b: int) -> EdgeChunk:
+    from lmjx.edges.chunk import EdgeChunk
+
     arrays, head = read(folder, a, b)
     return EdgeChunk(start=a, stop=b, rolled_out=head["rolled_out"], states_evaluated=head["states_evaluated"],
                      seconds=head["seconds"], **arrays)  # fmt: skip

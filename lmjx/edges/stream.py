@@ -37,6 +37,7 @@ tells the others which chunks are left.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import shutil
@@ -53,7 +54,7 @@ from lmjx.edges.chunkfile import NAME, saved_chunks
 from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, first_then_together, preset_programs
 from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
-from lmjx.edges.mapwriter import MapWriter
+from lmjx.edges.mapwriter import MapWriter, WriterProcess
 from lmjx.edges.preflight import DAY, Preflight, Work, preflight
 from lmjx.edges.preflight import duration_text as _duration
 from lmjx.edges.preflight import size_text as _size
@@ -157,8 +158,9 @@ def build_map(
     before = sys.getswitchinterval()
     sys.setswitchinterval(min(before, SWITCH_INTERVAL))
     try:
-        return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say, compile_presets,
-                          overwrite)  # fmt: skip
+        with contextlib.ExitStack() as stack:  # (the writing process, where the build stops before handing it its job)
+            return _build_map(out, failure, reach_cfg, config, robot, progress, sharded, yes, say, compile_presets,
+                              overwrite, stack)  # fmt: skip
     except BaseException as e:
         if jax.process_index() == 0:
             kept = leave_partial(folder, started, interrupted=isinstance(e, KeyboardInterrupt))
@@ -199,6 +201,7 @@ def _build_map(
     say,
     compile_presets: bool | None,
     overwrite: bool,
+    stack: contextlib.ExitStack,
 ) -> dict:
     import jax
 
@@ -215,6 +218,9 @@ def _build_map(
     plan = build_plan(robot, failure, reach_cfg, config)
     if _kept(out, plan, overwrite, lead):
         return {"kept": True}
+    # the map's writing process, started now so that its start overlaps the preflight and the
+    # reach map (`stack` stops it where the build ends before the map writer takes it)
+    process = stack.enter_context(WriterProcess()) if lead else None
     # One process with several devices: each device runs whole chunks of its own (its own
     # programs, and host threads preparing and collecting its work), so that the host work
     # scales with the devices too.  Several processes: every launch spread over all devices.
@@ -348,7 +354,7 @@ def _build_map(
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
     try:
-        writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets)) if lead else None
+        writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets), process) if lead else None
         for k, (a, b) in enumerate(todo):
             i = k % len(kernel_sets)
             window.append(pools[i].submit(job, kernel_sets[i], a, b))

@@ -9,13 +9,12 @@ from __future__ import annotations
 import collections
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import h5py
 import numpy as np
 
 from lmjx import __version__
-from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
 from lmjx.mapfile.checksum import with_checksum
 from lmjx.mapfile.digest import store_digest
@@ -32,14 +31,15 @@ from lmjx.mapfile.schema import (
     STR_DTYPE,
     config_to_attrs,
 )
-from lmjx.model.failure import Failure
-from lmjx.model.robot import ROBOTS, Robot, as_robot, load_robot
-from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # (the map-writing process appends edges without the robot's model or JAX: `edges.mapappend`)
+    from lmjx.edges.bundle import Bundle, BundleConfig
+    from lmjx.model.failure import Failure
+    from lmjx.model.robot import Robot
     from lmjx.planner.pushbuild import BuildPushCounts
+    from lmjx.reach.reachability import ReachResult
 
 try:  # Intel ISA-L's deflate: standard deflate streams (any HDF5 reads them), 6-10x faster
     from isal import isal_zlib as _deflate  # than zlib on these floats, sizes within 3 %
@@ -124,6 +124,8 @@ def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | str | 
 
 def _robot_of(reach: ReachResult) -> Robot:
     """The shipped robot a result was computed for (by its model's hash)."""
+    from lmjx.model.robot import ROBOTS, load_robot
+
     for robot in map(load_robot, ROBOTS):
         if robot.model_hash == reach.robot_hash:
             return robot
@@ -138,6 +140,8 @@ def write_map(
     edges as written), and the map's content digest (`mapfile.digest`).  Atomic (temp file,
     then rename).  Returns storage figures (bytes per stored edge state) and the push
     counts' time."""
+    from lmjx.model.robot import as_robot
+
     robot = as_robot(robot) if robot is not None else _robot_of(reach)
     sizes: dict = {}
     with atomic_path(path) as tmp:
@@ -147,7 +151,7 @@ def write_map(
                 w = EdgeWriter(f, bundle.config, reach, robot.nq)
                 w.add_states(bundle.q, bundle.qd, bundle.p)
                 w.add_edges({name: getattr(bundle, name) for name in PER_EDGE})
-                write_index(w.group, reach, bundle.index_offset, bundle.index_edges)
+                write_index(w.group, IndexGrid.of(reach), bundle.index_offset, bundle.index_edges)
                 sizes = w.close(bundle_attrs(bundle))
         if bundle is not None:
             sizes |= store_push_counts(tmp, robot)
@@ -188,18 +192,12 @@ class EdgeWriter:
     compression happen in the pool."""
 
     def __init__(
-        self, f: h5py.File, config: BundleConfig, reach: ReachResult, nq: int, threads: int | None = None
+        self, f: h5py.File, config: BundleConfig | None, reach: ReachResult | None, nq: int, threads: int | None = None
     ) -> None:
+        """`config`: the bundle's (None: /edges made already, `edges_group`); `reach`: unused."""
         from concurrent.futures import ThreadPoolExecutor
 
-        g = f.create_group("edges", track_order=True)
-        g.attrs["doc"] = (
-            "Edge bundle (paper Algorithm 2): valid edges stored flat; edge e's states are rows "
-            "offset[e] .. offset[e] + length[e] - 1 of q, qd and p."
-        )
-        config_to_attrs(g, config)
-        g.attrs["steps_max"] = config.steps
-        self.group = g
+        self.group = edges_group(f, config) if config is not None else f["edges"]
         self.widths = {"q": nq, "qd": nq, "p": 3}
         self.columns: dict[str, _Column] = {}
         for name, doc in PER_STATE.items():
@@ -354,7 +352,31 @@ def _write_chunks(ds: h5py.Dataset, chunks: list[tuple[int, list[np.ndarray]]], 
         ds.id.write_direct_chunk((row, *zeros), with_checksum(packed) if fletcher else packed, 0)
 
 
-def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np.ndarray | None) -> h5py.Dataset:
+def edges_group(f: h5py.File, config: BundleConfig) -> h5py.Group:
+    """/edges, with the bundle's settings as attributes (and nothing else yet)."""
+    g = f.create_group("edges", track_order=True)
+    g.attrs["doc"] = (
+        "Edge bundle (paper Algorithm 2): valid edges stored flat; edge e's states are rows "
+        "offset[e] .. offset[e] + length[e] - 1 of q, qd and p."
+    )
+    config_to_attrs(g, config)
+    g.attrs["steps_max"] = config.steps
+    return g
+
+
+class IndexGrid(NamedTuple):
+    """The reach grid the spatial index is over."""
+
+    nx: int
+    ny: int
+    cell: float  # [m]
+
+    @classmethod
+    def of(cls, reach: ReachResult) -> IndexGrid:
+        return cls(len(reach.xs), len(reach.ys), float(reach.config.cell))
+
+
+def write_index(g: h5py.Group, grid: IndexGrid, offset: np.ndarray, edges: np.ndarray | None) -> h5py.Dataset:
     """/edges/index: the CSR offsets, and the edge ids (`edges`, or left for the caller to
     fill into the returned dataset when None)."""
     idx = g.create_group("index", track_order=True)
@@ -363,9 +385,9 @@ def write_index(g: h5py.Group, reach: ReachResult, offset: np.ndarray, edges: np
         "edges[offset[c] : offset[c + 1]]; an edge is listed when its interaction point passes "
         "over the cell with the link's lowest surface at most `height` above the table."
     )
-    idx.attrs["nx"] = len(reach.xs)
-    idx.attrs["ny"] = len(reach.ys)
-    idx.attrs["cell"] = reach.config.cell
+    idx.attrs["nx"] = grid.nx
+    idx.attrs["ny"] = grid.ny
+    idx.attrs["cell"] = grid.cell
     idx.attrs["height"] = float(g.attrs["index_height"])
     _dataset(idx, "offset", offset, "CSR offsets, length ny * nx + 1")
     if edges is not None:
@@ -391,6 +413,8 @@ def _write_header(f: h5py.File, robot: Robot, failure: Failure, contents: str) -
     f.attrs["schema"] = SCHEMA
     f.attrs["schema_version"] = SCHEMA_VERSION
     f.attrs["lmjx_version"] = __version__
+    from lmjx.model.robot import ROBOTS
+
     f.attrs["robot"] = robot.key if robot.key in ROBOTS else robot.name
     f.attrs["robot_model"] = robot.name
     f.attrs["robot_model_hash"] = robot.model_hash
@@ -408,6 +432,18 @@ def store_push_counts(
     (the map's states go through the device once, `lmjx.planner.pushsamples`), unless
     `summed` (`lmjx.planner.pushbuild.BuildPushCounts`) holds them, summed over the map's
     chunks while it was built: then only their keys are computed here."""
+    t0 = time.perf_counter()
+    entries, attrs = push_counts_of(path, robot, progress, summed)
+    with h5py.File(path, "r+") as f:
+        write_push_counts(f["edges"], entries, attrs)
+    return {"push_seconds": round(time.perf_counter() - t0, 4), "push_entries": len(entries)}
+
+
+def push_counts_of(
+    path: str | Path, robot: Robot, progress: bool = False, summed: BuildPushCounts | None = None
+) -> tuple[list, dict]:
+    """`store_push_counts`'s counts of the map at `path` (only read) and the attributes
+    `write_push_counts` stores with them."""
     from lmjx.mapfile.read import load_map
     from lmjx.planner.clearance import FIXED_MARGIN, MIN_EDGE_STATES
     from lmjx.planner.pushfield import COUNTS_VERSION, HEIGHT, MAX_ANGLE, builtin_counts
@@ -426,6 +462,4 @@ def store_push_counts(
     seconds = time.perf_counter() - t0
     attrs = {"platform": backend(), "counts_version": COUNTS_VERSION, "max_angle_deg": MAX_ANGLE, "height_m": HEIGHT,
              "fixed_margin_m": FIXED_MARGIN, "min_edge_states": MIN_EDGE_STATES, "seconds": seconds}  # fmt: skip
-    with h5py.File(path, "r+") as f:
-        write_push_counts(f["edges"], entries, attrs)
-    return {"push_seconds": round(time.perf_counter() - t0, 4), "push_entries": len(entries)}
+    return entries, attrs

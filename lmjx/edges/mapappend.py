@@ -1,0 +1,233 @@
+"""The map-writing process of a streamed build (`lmjx build-map`; `mapwriter` starts it and
+feeds it): the saved chunks appended in order to the map being written, the spatial index
+sorted from them at the end, then the closed map's content digest.
+
+It imports h5py, numpy and lmjx's map-file code only, never JAX or the robot's model
+(`python -X importtime -c "import lmjx.edges.mapappend"`), so that it starts in a fraction
+of a second: its job (`Job`) holds plain values.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import signal
+import threading
+import time
+import traceback
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from lmjx.edges import chunkfile
+from lmjx.errors import LmjxError
+from lmjx.mapfile.digest import content_digest
+from lmjx.mapfile.schema import PER_EDGE
+from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index
+from lmjx.runtime import threadprof
+
+INDEX_PAIRS = 64 * 2**20  # spatial-index pairs placed at a time when assembling (256 MB of edge ids)
+READ_AHEAD = 4  # chunk files the writing process reads ahead
+
+
+@dataclass
+class Job:
+    """What the writing process is given (plain values: it imports neither JAX nor the robot)."""
+
+    folder: Path
+    nq: int
+    n: int
+    ranges: list[tuple[int, int]]  # every chunk of the map, in order
+    saved: set[tuple[int, int]]  # those already saved by an earlier run
+    threads: int
+    tmp: Path  # the map being written (its head and /edges' settings written by the build's process)
+    grid: IndexGrid  # the reach grid
+    steps: int  # control steps per edge (the bundle's `steps`)
+    reasons: tuple[str, ...]  # the rejection reasons a chunk counts, in order (`bundle.reasons`)
+    appended: tuple[str, ...]  # the chunk arrays appended (the index pairs are read at the end)
+
+
+def writer_process(inbox_fd: int, outbox_fd: int) -> None:
+    """The writing process's entry point: its pipes from the build's process."""
+    _writer_main(Connection(inbox_fd, writable=False), Connection(outbox_fd, readable=False))
+
+
+def _writer_main(inbox: Connection, outbox: Connection) -> None:
+    """The writing process: its job, then the map from the chunk files; the figures (or
+    the error) back."""
+    from lmjx.runtime.hostmem import return_large_buffers
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.current_thread().name = "lmjx-map-writer"
+    return_large_buffers()  # as the build's process (lmjx.cli)
+    try:
+        job = inbox.recv()
+    except (EOFError, OSError):  # the build's process stopped before it was sent whole
+        return
+    sampler = threadprof.from_environment()  # LMJX_THREAD_PROFILE: this process's threads too
+    try:
+        result = _Appender(job, inbox).run()
+        if sampler is not None:
+            result["threads"] = sampler.stop() | {"process": "writer"}
+        outbox.send(("done", result, ""))
+        # the closed map's content digest, while the build's process computes its push counts
+        # (it adds both: the digest leaves the push counts out)
+        t0 = time.perf_counter()
+        digest, _ = content_digest(job.tmp)
+        outbox.send(("digest", (digest, time.perf_counter() - t0), ""))
+    except (EOFError, BrokenPipeError):
+        return  # the build's process is gone
+    except BaseException as e:
+        trace = traceback.format_exc()
+        try:
+            outbox.send(("error", e, trace))
+        except Exception:  # an exception that does not pickle, or the build's process is gone
+            with contextlib.suppress(Exception):
+                outbox.send(("error", RuntimeError(f"the map writer failed: {type(e).__name__}: {e}"), trace))
+
+
+class _Appender:
+    """The writing process's work: chunks appended in order as they are saved."""
+
+    def __init__(self, job: Job, inbox) -> None:
+        self.job, self.inbox = job, inbox
+        self.ready: set[tuple[int, int]] = set()  # units the build's process says are saved
+        self.timing = {"waits": 0.0, "read": 0.0, "write_states": 0.0, "write_edges": 0.0, "index": 0.0,
+                       "close": 0.0}  # fmt: skip
+        self.totals = {"counts": np.zeros(job.grid.nx * job.grid.ny, np.int64), "rejected": np.zeros(len(job.reasons),
+                       np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
+        self.file = h5py.File(job.tmp, "r+")  # its head written by the build's process
+        self.w = EdgeWriter(self.file, None, None, job.nq, threads=job.threads)  # (its /edges made)
+
+    def _next_unit(self) -> None:
+        kind, *rest = self.inbox.recv()
+        if kind != "unit":
+            raise RuntimeError(f"the map writer got '{kind}' before every chunk")
+        self.ready.add((rest[0], rest[1]))
+
+    def _read(self, a: int, b: int) -> tuple[dict, dict]:
+        t0 = time.perf_counter()
+        arrays, head = chunkfile.read(self.job.folder, a, b, self.job.appended)
+        self.timing["read"] += time.perf_counter() - t0  # summed over the readers
+        return arrays, head
+
+    def run(self) -> dict:
+        job = self.job
+        reader = ThreadPoolExecutor(READ_AHEAD, thread_name_prefix="lmjx-read")
+        loads: collections.deque = collections.deque()  # reads in flight, in order
+        k = 0  # the next range to read
+        try:
+            for _ in job.ranges:
+                t0 = time.perf_counter()
+                while k < len(job.ranges) and len(loads) < READ_AHEAD:
+                    r = job.ranges[k]
+                    # wait for a unit's message only when nothing else is being read
+                    while r not in job.saved and r not in self.ready and (not loads or self.inbox.poll()):
+                        self._next_unit()
+                    if r not in job.saved and r not in self.ready:
+                        break
+                    loads.append(reader.submit(self._read, *r))
+                    k += 1
+                arrays, head = loads.popleft().result()
+                self.timing["waits"] += time.perf_counter() - t0
+                self._append(arrays, head)
+        finally:
+            reader.shutdown(cancel_futures=True)
+        kind, attrs = self.inbox.recv()
+        if kind != "finish":
+            raise RuntimeError(f"the map writer got '{kind}' after the last chunk")
+        return self._finish(attrs)
+
+    def _append(self, c: dict, head: dict) -> None:
+        t = self.totals
+        t["first_edge"].append(self.w.n_edges)
+        t0 = time.perf_counter()
+        self.w.add_states(c["q"], c["qd"], c["p"])
+        t1 = time.perf_counter()
+        length = c["length"]
+        starts = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
+        q_start = c["q"][starts] if len(length) else np.zeros((0, self.job.nq), np.float32)
+        self.w.add_edges({name: q_start if name == "q_start" else c[name] for name in PER_EDGE})
+        t["counts"] += np.bincount(c["index_cell"], minlength=len(t["counts"]))
+        t["rejected"] += c["rejected"]
+        t["rolled_out"] += head["rolled_out"]
+        t["evaluated"] += head["states_evaluated"]
+        t["states"] += len(c["q"])
+        self.timing["write_states"] += t1 - t0
+        self.timing["write_edges"] += time.perf_counter() - t1
+
+    def _finish(self, attrs: dict) -> dict:
+        job, t = self.job, self.totals
+        t0 = time.perf_counter()
+        offset = np.zeros(len(t["counts"]) + 1, np.int64)
+        offset[1:] = np.cumsum(t["counts"])
+        ds = write_index(self.w.group, job.grid, offset, None)
+        write_index_edges(ds, job.folder, job.ranges, t["first_edge"], offset)
+        t1 = time.perf_counter()
+        rejected = {r: int(k) for r, k in zip(job.reasons, t["rejected"], strict=True)}
+        steps = t["rolled_out"] * job.steps
+        sizes = self.w.close({"edges_sampled": job.n, "rejected": rejected, "edge_steps": steps,
+                              "states_evaluated": t["evaluated"], **attrs})  # fmt: skip
+        self.file.close()
+        self.timing["index"] = t1 - t0
+        self.timing["close"] = time.perf_counter() - t1
+        return {"edges_sampled": job.n, "edges_valid": self.w.n_edges, "states": t["states"], "rejected": rejected,
+                "edge_steps": steps, "states_evaluated": t["evaluated"], "timing": self.timing,
+                "threads_used": job.threads, "peak_rss": peak_rss(), **sizes}  # fmt: skip
+
+
+def annotated(e: BaseException, trace: str) -> BaseException:
+    """The writing process's exception, with its traceback there as a note (but for a
+    user's error, whose message says it all)."""
+    if not isinstance(e, LmjxError):
+        e.add_note(f"in the map-writing process:\n{trace}")
+    return e
+
+
+def peak_rss() -> int:
+    """This process's peak resident memory in bytes: VmHWM, which a new program starts
+    afresh (getrusage's ru_maxrss keeps, across exec, what the forking process held)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def write_index_edges(
+    ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+) -> None:
+    """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
+    range at most INDEX_PAIRS pairs, read from every saved chunk).  Each chunk's pairs are
+    sorted by (cell, edge) and the chunks come in edge order, so every pair's place is
+    known without sorting: its cell's start (`offset`), plus the pairs earlier chunks put
+    there, plus its rank among its chunk's pairs of that cell."""
+    n_cells = len(offset) - 1
+    c0 = 0
+    while c0 < n_cells:
+        c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
+        c1 = min(c1, n_cells)
+        out = np.empty(int(offset[c1] - offset[c0]), np.int32)
+        fill = (offset[c0:c1] - offset[c0]).astype(np.int64)  # each cell's next free place in `out`
+        for (a, b), e0 in zip(ranges, first_edge, strict=True):
+            pairs, _ = chunkfile.read(folder, a, b, ("index_cell", "index_edge"))
+            cell, edge = pairs["index_cell"], pairs["index_edge"]
+            lo, hi = np.searchsorted(cell, [c0, c1])
+            if hi == lo:
+                continue
+            c = cell[lo:hi].astype(np.int64) - c0
+            count = np.bincount(c, minlength=c1 - c0)
+            rank = np.arange(hi - lo) - (np.cumsum(count) - count)[c]
+            out[fill[c] + rank] = edge[lo:hi] + np.int32(e0)
+            fill += count
+        if len(out):
+            ds[offset[c0] : offset[c1]] = out
+        c0 = c1
