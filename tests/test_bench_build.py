@@ -30,7 +30,8 @@ def test_the_build_section_times_the_users_command(tiny_map, capsys):
     assert row["wall_over_kernel"] == pytest.approx(row["wall_s"] / row["kernel_s"], rel=0.01)
     assert row["preflight_s"] > 0 and set(row["preflight_stages_s"]) == {"startup", *STAGES[:-1]}
     err = 100 * (row["preflight_s"] - row["wall_s"]) / row["wall_s"]
-    assert row["preflight_error_pct"] == pytest.approx(err, abs=0.1)
+    # (from the wall time rounded to the millisecond: off by a few tenths where the estimate is several times it)
+    assert row["preflight_error_pct"] == pytest.approx(err, rel=1e-3, abs=0.1)
     assert "per-stage rates" in row["preflight_basis"]
     print_build({"failure": "J4=0.5", "rows": [row]})
     out = capsys.readouterr().out.splitlines()
