@@ -58,12 +58,14 @@ class StageRates:
 # cpu: the 2-core machine, `lmjx build-map --json` of 10,000 case-2 edges and 20,000 case-1
 # edges with the programs cached, and of 10,000 case-2 edges with an empty cache (compile_s),
 # its cores shared with other work (load average 8-15: an idle machine builds 2-3x faster).
-# gpu: one H200 with 16 host cores, `lmjx bench --sections build` (100,000 and 1,000,000 case-2
-# edges, programs cached: the index 4.2 M states/s, the push counts 1.6 M states/s, packing and
-# writing 0.9 M states/s on the host, 3.7 s of cache loads, 4.6 s of start-up) and a cold
-# 100,000-edge build (compile_s: the edges' include the other presets' programs compiled ahead
-# for later builds, which the build waits for); the reach map and the edges' IK and rollouts
-# from RESULTS.md's kernel rows.  The host stages scale with the host's cores, not the GPUs.
+# gpu: one H200 with 16 host cores, `lmjx build-map --json` of 100,000, 1,000,000 and
+# 5,000,000 case-2 edges with the programs cached (the index 4.2 M states/s; the push counts,
+# summed by the packers beside the rollouts, leave 40 M states/s at the end; packing, writing
+# and the map's digest left after the rollouts 1.6 M states/s; 2.1 s of cache loads; 4.6 s of
+# start-up and fixed costs) and a cold 100,000-edge build (compile_s: the edges' include the
+# other presets' programs compiled ahead for later builds, which the build waits for); the
+# rollouts at the builds' 18 M edge-steps/s.  The host stages scale with the host's cores, not
+# the GPUs.
 RATES = {
     "cpu": StageRates(
         where="a 2-core CPU",
@@ -85,13 +87,13 @@ RATES = {
         startup_s=4.6,
         reach_problems_per_s=4_000_000.0,
         ik_problems_per_s=8_000_000.0,
-        edge_steps_per_s=15_000_000.0,
+        edge_steps_per_s=18_000_000.0,
         index_states_per_s=4_200_000.0,
-        push_states_per_s=1_500_000.0,
-        write_states_per_s=900_000.0,
+        push_states_per_s=40_000_000.0,
+        write_states_per_s=1_600_000.0,
         overlap=1.0,
-        compile_s={"reach": 10.0, "edges": 45.0, "index": 7.0, "push": 8.0},
-        cached_s={"reach": 1.0, "edges": 1.8, "index": 0.9, "push": 0.0},
+        compile_s={"reach": 10.0, "edges": 70.0, "index": 7.0, "push": 8.0},
+        cached_s={"reach": 0.7, "edges": 0.8, "index": 0.6, "push": 0.0},
     ),
 }
 
