@@ -55,9 +55,10 @@ class StageRates:
 
 
 # The one table of measured rates (benchmarks/RESULTS.md, "lmjx bench --sections build").
-# cpu: the 2-core machine, `lmjx build-map --json` of 10,000 case-2 edges and 20,000 case-1
-# edges with the programs cached, and of 10,000 case-2 edges with an empty cache (compile_s),
-# its cores shared with other work (load average 8-15: an idle machine builds 2-3x faster).
+# cpu: the 2-core machine, idle, `lmjx build-map --json` of 10,000 case-2 edges (`make run`'s
+# map) with the programs cached, and with an empty cache (compile_s; the push counts' programs
+# compile in the packer beside the rollouts); cores shared with other work slow every stage
+# (at a load average of 8-15, 3-5x).
 # gpu: one H200 with 16 host cores, `lmjx build-map --json` of 100,000, 1,000,000 and
 # 5,000,000 case-2 edges with the programs cached (the index 4.2 M states/s; the push counts,
 # summed by the packers beside the rollouts, leave 40 M states/s at the end; packing, writing
@@ -70,16 +71,16 @@ RATES = {
     "cpu": StageRates(
         where="a 2-core CPU",
         cores=2,
-        startup_s=8.0,
-        reach_problems_per_s=4_800.0,
-        ik_problems_per_s=2_800.0,
-        edge_steps_per_s=14_000.0,
-        index_states_per_s=34_000.0,
-        push_states_per_s=19_000.0,
-        write_states_per_s=160_000.0,
+        startup_s=2.5,
+        reach_problems_per_s=19_000.0,
+        ik_problems_per_s=14_800.0,
+        edge_steps_per_s=65_000.0,
+        index_states_per_s=125_000.0,
+        push_states_per_s=1_200_000.0,
+        write_states_per_s=40_000.0,
         overlap=0.68,
-        compile_s={"reach": 32.0, "edges": 60.0, "index": 50.0, "push": 60.0},
-        cached_s={"reach": 2.5, "edges": 5.0, "index": 5.5, "push": 0.0},
+        compile_s={"reach": 6.4, "edges": 12.5, "index": 10.2, "push": 9.0},
+        cached_s={"reach": 0.7, "edges": 0.65, "index": 0.95, "push": 0.0},
     ),
     "gpu": StageRates(
         where="an H200",
