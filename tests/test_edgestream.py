@@ -171,6 +171,7 @@ def test_other_parameters_do_not_touch_a_partial_build(tmp_path):
 
 
 def test_preflight_refuses_days_of_work_without_yes_and_missing_room(robot, tmp_path, monkeypatch):
+    monkeypatch.setenv("LMJX_CORES", "1")  # 50,000,000 edges: about 21 h on two cores, 41 h on one
     r = cli("build-map", "--failure", "case2", "--edges", "50000000", "--out", tmp_path / "big.h5")
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and "Traceback" not in r.stderr
