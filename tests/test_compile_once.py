@@ -8,6 +8,7 @@ programs of a few operations are compiled here."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -29,6 +30,7 @@ from lmjx.edges.compiling import (
     PresetCompiler,
     preset_failures,
     preset_programs,
+    preset_record,
 )
 from lmjx.edges.sampling import EdgeKernels, launch_sizes
 from lmjx.model.failure import parse_failure
@@ -157,6 +159,46 @@ def test_the_cache_lookup_agrees_with_jax():
     finally:
         jax.monitoring.unregister_event_listener(listen)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+
+
+class _Unlowerable:
+    """A stand-in program that fails when lowered: a build that lowers it says so."""
+
+    key = "unlowerable"
+
+    def lower(self):
+        raise RuntimeError("lowered")
+
+
+def test_a_record_spares_looking_the_presets_up(tmp_path):
+    """Once the presets are all in the cache, the record of their cache keys lets the next
+    build skip lowering and looking them up; a record whose programs the cache no longer
+    holds (or that names other programs) is ignored."""
+    constant = float(int.from_bytes(os.urandom(3), "little"))
+    record = tmp_path / "programs" / "presets.json"
+    before = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # so small a program is kept too
+    try:
+        first = PresetCompiler([("f", "test", _kernel(constant))], record=record)
+        first.run()
+        assert first.compiled == ["f test"] and first.error is None
+        keys = json.loads(record.read_text())["jax_keys"]
+        assert keys == [jax_cache_key(_kernel(constant).lower()[0])]
+        spared = PresetCompiler([("f", "test", _Unlowerable())], record=record)  # (it is not lowered)
+        spared.run()
+        assert spared.cached == ["f test"] and spared.error is None
+        two = PresetCompiler([("f", "test", _Unlowerable()), ("g", "test", _Unlowerable())], record=record)
+        two.run()  # the record holds one program's key: these are looked up
+        assert two.error is not None and "lowered" in two.error
+        record.write_text(json.dumps({"programs": ["f test"], "jax_keys": ["0" * 64]}))  # not in the cache
+        stale = PresetCompiler([("f", "test", _Unlowerable())], record=record)
+        stale.run()
+        assert stale.cached == [] and stale.error is not None
+    finally:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before)
+    named = preset_record([("f", "test", _kernel(1.0))])
+    assert named == preset_record([("g", "x", _kernel(1.0))]) != preset_record([("f", "test", _kernel(2.0))])
+    assert named is not None and named.parent.name == "programs" and preset_record([]) is None
 
 
 def test_a_stopped_compiler_starts_no_program():

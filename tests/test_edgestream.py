@@ -206,6 +206,14 @@ def test_preflight_refuses_days_of_work_without_yes_and_missing_room(robot, tmp_
     assert not list(tmp_path.iterdir())
 
 
+def test_packing_units_give_every_packer_work():
+    from lmjx.edges.mapwriter import MIN_PACK_EDGES, PACK_EDGES, unit_edges
+
+    assert unit_edges(100_000, 5) == 20_000  # a GPU's default build: one chunk, five units
+    assert unit_edges(1_000_000, 5) == PACK_EDGES == 1 << 16
+    assert unit_edges(10_000, 5) == MIN_PACK_EDGES and unit_edges(10, 1) == MIN_PACK_EDGES
+
+
 def test_missing_ranges_cover_what_is_not_saved():
     assert missing_ranges([], 10, 4) == [(0, 4), (4, 8), (8, 10)]
     assert missing_ranges([(0, 3), (5, 7)], 10, 4) == [(3, 5), (7, 10)]

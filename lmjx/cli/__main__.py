@@ -1,7 +1,5 @@
 """`python -m lmjx.cli`: the `lmjx` command."""
 
-import sys
+from lmjx.cli import entry
 
-from lmjx.cli import main
-
-sys.exit(main())
+entry()

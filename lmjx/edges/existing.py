@@ -15,10 +15,9 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-import h5py
-
 from lmjx import __version__
 from lmjx.edges.bundle import BundleConfig
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, attr_str, config_from_attrs
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
@@ -53,7 +52,7 @@ def map_plan(path: str | Path) -> dict | str:
     """The plan of the finished map at `path` (without `lmjx_version`), or, for any other
     file, what it holds in a few words."""
     try:
-        with h5py.File(path, "r") as f:
+        with h5open(path, "r") as f:
             a = f.attrs
             if attr_str(a.get("schema", "")) != SCHEMA:
                 return "a file that is not an lmjx map"

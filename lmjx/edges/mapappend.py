@@ -26,6 +26,7 @@ import numpy as np
 from lmjx.edges import chunkfile
 from lmjx.errors import LmjxError
 from lmjx.mapfile.digest import content_digest
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import PER_EDGE
 from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index
 from lmjx.runtime import threadprof
@@ -100,7 +101,7 @@ class _Appender:
                        "close": 0.0}  # fmt: skip
         self.totals = {"counts": np.zeros(job.grid.nx * job.grid.ny, np.int64), "rejected": np.zeros(len(job.reasons),
                        np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
-        self.file = h5py.File(job.tmp, "r+")  # its head written by the build's process
+        self.file = h5open(job.tmp, "r+")  # its head written by the build's process
         self.w = EdgeWriter(self.file, None, None, job.nq, threads=job.threads)  # (its /edges made)
 
     def _next_unit(self) -> None:

@@ -37,14 +37,13 @@ from concurrent.futures import ThreadPoolExecutor
 from multiprocessing.connection import Connection
 from pathlib import Path
 
-import h5py
-
 from lmjx.edges import chunkfile
 from lmjx.edges.bundle import BundleConfig, reasons
 from lmjx.edges.chunk import EdgeChunk, chunk_ranges, pack_chunk
 from lmjx.edges.mapappend import Job, annotated, peak_rss
 from lmjx.edges.sampling import split_rolled
 from lmjx.mapfile.digest import DIGEST_ATTR
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.write import IndexGrid, edges_group, push_counts_of, write_head
 from lmjx.model.robot import Robot
@@ -52,10 +51,20 @@ from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.cores import usable_cores
 
 # Sampled edges packed (and saved to the partial folder) at a time; not part of the result
-# (LMJX_PACK_EDGES overrides it: the tests use small units).
+# (LMJX_PACK_EDGES overrides it: the tests use small units).  A build with fewer edges than
+# a unit per packer packs units of fewer, down to MIN_PACK_EDGES (`unit_edges`).
 PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
+MIN_PACK_EDGES = 1 << 13
 # the chunk arrays the writing process appends (the index pairs are read at the end)
 APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
+
+
+def unit_edges(edges: int, packers: int) -> int:
+    """Sampled edges per packing unit of a build computing `edges` with `packers` threads:
+    `PACK_EDGES`, or fewer (not under `MIN_PACK_EDGES`, nor over `PACK_EDGES`) where that
+    leaves packers idle.  A GPU's 100,000-edge build is one chunk: in units of 65,536, two
+    of its five packers packed it while the rollouts were done and the rest waited."""
+    return min(PACK_EDGES, max(MIN_PACK_EDGES, -(-edges // max(1, packers))))
 
 
 def packer_threads() -> int:
@@ -133,19 +142,20 @@ class MapWriter:
     ) -> None:
         t_start = time.perf_counter()
         self.folder, self.reach, self.config, self.robot = folder, reach, config, robot
-        units = [u for a, b in todo for u in chunk_ranges(b, PACK_EDGES, a)]
+        self.packers = packer_threads()
+        self.unit = unit_edges(sum(b - a for a, b in todo), self.packers)
+        units = [u for a, b in todo for u in chunk_ranges(b, self.unit, a)]
         self.n_units = len(units)
         # the map being written: a name of this run's own (a writing process a killed run left
         # behind, until it notices, keeps writing its own file, unlinked here)
         for old in folder.glob("map*.h5.tmp"):
             old.unlink(missing_ok=True)
         self.tmp = folder / f"map-{os.getpid()}.h5.tmp"
-        self.packers = packer_threads()
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
         most = max((b - a for a, b in todo), default=1)
         # pack jobs, in order: per device, a chunk's units and 4 more (on 2 H200s, 6 in all
         # kept the packers from keeping up: benchmarks/RESULTS.md)
-        self.queue: queue.Queue = queue.Queue(maxsize=devices * (-(-most // PACK_EDGES) + 4))
+        self.queue: queue.Queue = queue.Queue(maxsize=devices * (-(-most // self.unit) + 4))
         self.error: BaseException | None = None  # what stopped the packers or the feeder
         self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
@@ -169,7 +179,7 @@ class MapWriter:
                        IndexGrid.of(reach), config.steps, reasons(), APPENDED)  # fmt: skip
         # the map's head (root attributes, /robot, /reach, /edges' settings) written here: the
         # writing process adds /edges' datasets, and needs neither the robot's model nor JAX
-        with h5py.File(self.tmp, "w", track_order=True) as f:
+        with h5open(self.tmp, "w", track_order=True) as f:
             write_head(f, robot, reach, with_edges=True)
             edges_group(f, config)
         self.process = process if process is not None else WriterProcess()
@@ -183,10 +193,10 @@ class MapWriter:
         self.parts["start"] = time.perf_counter() - t_start  # the build's wait here, before its first chunk
 
     def put(self, samples, idx, rolled) -> None:
-        """Hand over a computed chunk, packed in units of `PACK_EDGES` sampled edges."""
+        """Hand over a computed chunk, packed in units of `unit` sampled edges (`unit_edges`)."""
         t0 = time.perf_counter()
         n = len(samples.which)
-        for a, b in chunk_ranges(samples.start + n, PACK_EDGES, samples.start):
+        for a, b in chunk_ranges(samples.start + n, self.unit, samples.start):
             job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
             while True:
                 self._check()
@@ -281,7 +291,7 @@ class MapWriter:
         self.proc.wait()
         self.to_writer.close()
         self.from_writer.close()
-        with h5py.File(self.tmp, "r+") as f:
+        with h5open(self.tmp, "r+") as f:
             write_push_counts(f["edges"], entries, push_attrs)
             f.attrs[DIGEST_ATTR] = digest
         push = {"push_seconds": round(time.perf_counter() - t1 - self.parts["digest_wait"], 4)}

@@ -158,9 +158,11 @@ class EdgeKernels:
         self.rollout = rollout_kernel(robot, failure, config, roll_chunk, limits, sharded=sharded, device=device)
 
     def warm(self) -> None:
-        """Compile the programs now (e.g. in a thread of its own while other work runs)."""
-        self.ik.compile()
+        """Compile the programs now (e.g. in a thread of its own while other work runs): the
+        rollout first, as the IK program is often the reach map's, which a build's reach map
+        loads meanwhile."""
         self.rollout.compile()
+        self.ik.compile()
 
     @property
     def compile_seconds(self) -> float:

@@ -51,7 +51,13 @@ import numpy as np
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
 from lmjx.edges.chunkfile import NAME, saved_chunks
-from lmjx.edges.compiling import BackgroundCompile, PresetCompiler, first_then_together, preset_programs
+from lmjx.edges.compiling import (
+    BackgroundCompile,
+    PresetCompiler,
+    first_then_together,
+    preset_programs,
+    preset_record,
+)
 from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter, WriterProcess
@@ -299,7 +305,8 @@ def _build_map(
     elif compile_presets and lead and cache_dir() is None:
         say("other failures' programs are not compiled ahead: there is no cache to keep them (--cache-dir off)")
     if compile_presets and jax.process_count() == 1 and cache_dir() is not None:
-        presets = PresetCompiler(preset_programs(robot, failure, reach_cfg, config, half))
+        programs = preset_programs(robot, failure, reach_cfg, config, half)
+        presets = PresetCompiler(programs, record=preset_record(programs))
     # The edges' programs and the spatial index's (its capsule program and its passes) compile in
     # a thread of their own while the reach map is computed (they do not depend on it); then, for
     # later builds, the other presets' programs.

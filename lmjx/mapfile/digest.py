@@ -22,6 +22,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from lmjx.mapfile.h5 import h5open
+
 ROWS = 1 << 20  # rows read at a time
 DERIVED = ("edges/push",)  # groups derived from the content: not hashed
 DIGEST_ATTR = "content_digest"  # the root attribute the build stores the digest in
@@ -44,7 +46,7 @@ def content_digest(path: str | Path, each: dict[str, str] | None = None, paralle
     (its first 16 hex digits).  `parallel`: datasets stored as lmjx stores edge states
     decompressed on all cores (else every dataset through h5py: the same digest)."""
     h, names = hashlib.sha256(), []
-    with h5py.File(path, "r") as f:
+    with h5open(path, "r") as f:
         f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
         for name in sorted(n for n in names if hashed(n)):
             ds = f[name]
@@ -82,7 +84,7 @@ def _blocks(ds: h5py.Dataset, parallel: bool):
 
 def stored_digest(path: str | Path) -> str | None:
     """The digest the build stored in the map at `path`, or None (a map written without it)."""
-    with h5py.File(path, "r") as f:
+    with h5open(path, "r") as f:
         value = f.attrs.get(DIGEST_ATTR)
     if value is None:
         return None
@@ -94,7 +96,7 @@ def store_digest(path: str | Path) -> str:
     root attribute `content_digest`; the digest back.  The writers call it on their
     temporary file, before it is renamed into place."""
     digest, _ = content_digest(path)
-    with h5py.File(path, "r+") as f:
+    with h5open(path, "r+") as f:
         f.attrs[DIGEST_ATTR] = digest
     return digest
 

@@ -15,6 +15,7 @@ import numpy as np
 from lmjx import __version__
 from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.lazystates import StateReader, damaged
 from lmjx.mapfile.pushcounts import read_push_counts
 from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
@@ -143,7 +144,7 @@ def load_map(
     if not is_h5:
         raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)")
     try:
-        f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+        f = h5open(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
     except OSError as e:
         raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
     keep_open = False
@@ -188,7 +189,7 @@ def load_map(
                 keep_open = lazy
             edges_attrs = dict(f["edges"].attrs) if "edges" in f else {}
             if keep_open:  # the with block must not close it: reopen the handle it holds
-                f = h5py.File(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
+                f = h5open(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
                 g = f["edges"]
                 edges.q, edges.qd, edges.p = (StateReader(g[k]) for k in ("q", "qd", "p"))
     except MapFileError:

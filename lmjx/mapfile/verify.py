@@ -27,6 +27,7 @@ import numpy as np
 
 from lmjx.errors import MapFileError
 from lmjx.mapfile.checksum import ChecksumError, strip_checksum
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import PER_EDGE, READ_VERSIONS, SCHEMA, attr_str
 from lmjx.runtime.cores import usable_cores
 
@@ -62,7 +63,7 @@ def verify_map(path: str | Path, threads: int | None = None) -> Verification:
     if not p.is_file():
         raise MapFileError(f"map file {p} does not exist" if not p.exists() else f"{p} is not a file")
     try:
-        f = h5py.File(p, "r")
+        f = h5open(p, "r")
     except OSError as e:
         if not h5py.is_hdf5(str(p)):
             raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)") from None

@@ -18,6 +18,7 @@ from lmjx import __version__
 from lmjx.errors import MapFileError
 from lmjx.mapfile.checksum import with_checksum
 from lmjx.mapfile.digest import store_digest
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.schema import (
     DEFLATE_LEVEL,
@@ -145,7 +146,7 @@ def write_map(
     robot = as_robot(robot) if robot is not None else _robot_of(reach)
     sizes: dict = {}
     with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w", track_order=True) as f:
+        with h5open(tmp, "w", track_order=True) as f:
             write_head(f, robot, reach, with_edges=bundle is not None)
             if bundle is not None:
                 w = EdgeWriter(f, bundle.config, reach, robot.nq)
@@ -434,7 +435,7 @@ def store_push_counts(
     chunks while it was built: then only their keys are computed here."""
     t0 = time.perf_counter()
     entries, attrs = push_counts_of(path, robot, progress, summed)
-    with h5py.File(path, "r+") as f:
+    with h5open(path, "r+") as f:
         write_push_counts(f["edges"], entries, attrs)
     return {"push_seconds": round(time.perf_counter() - t0, 4), "push_entries": len(entries)}
 
@@ -453,7 +454,7 @@ def push_counts_of(
     if summed is not None:
         from lmjx.planner.pushbuild import KeyedEdges
 
-        with h5py.File(path, "r") as f:
+        with h5open(path, "r") as f:
             entries = summed.entries(KeyedEdges.read(f["edges"]))
     else:
         with load_map(path, robot, lazy=True) as m:

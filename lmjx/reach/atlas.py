@@ -35,10 +35,10 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from lmjx.errors import ConfigError
+from lmjx.mapfile.h5 import h5open
 from lmjx.model.robot import Robot
 from lmjx.reach.ik_batch import device_description
 from lmjx.reach.reachability import NPM, PM, UNREACHABLE, ReachConfig, attempt_plan, smooth_labels
@@ -147,7 +147,7 @@ def _robot_name(robot: Robot) -> str:
 
 def write_atlas(path: str | Path, st: AtlasState) -> None:
     """The atlas to HDF5, atomically."""
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+    with atomic_path(path) as tmp, h5open(tmp, "w") as f:
         f.attrs["schema"] = SCHEMA
         f.attrs["version"] = VERSION
         f.attrs["params"] = json.dumps(st.config.params(), sort_keys=True)
@@ -174,7 +174,7 @@ def read_atlas(path: str | Path, robot: Robot | None = None) -> AtlasState:
     if not p.exists():
         raise ConfigError(f"no atlas at {p}")
     try:
-        f = h5py.File(p, "r")
+        f = h5open(p, "r")
     except OSError as e:
         raise ConfigError(f"{p} is not an HDF5 file ({e})") from None
     with f:
@@ -344,7 +344,7 @@ def build_atlas(
 def same_content(a: str | Path, b: str | Path) -> list[str]:
     """What differs between two atlas files, run records (device, times) aside: [] if nothing."""
     diffs = []
-    with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
+    with h5open(a, "r") as fa, h5open(b, "r") as fb:
         for k in ("schema", "version", "params", "robot_hash", "robot", "complete", "cell_m"):
             if fa.attrs.get(k) != fb.attrs.get(k):
                 diffs.append(f"attribute {k}")

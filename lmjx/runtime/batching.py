@@ -36,6 +36,14 @@ def _code_version() -> str:
     return h.hexdigest()
 
 
+def program_ident(key: tuple) -> str:
+    """A hex name for the program of kernel key `key` as this machine makes it: the key,
+    lmjx's kernel sources, JAX's version and the platform (what its trace depends on)."""
+    dev = jax.devices()[0]
+    ident = repr((key, _code_version(), jax.__version__, dev.platform, getattr(dev, "device_kind", "")))
+    return hashlib.sha256(ident.encode()).hexdigest()
+
+
 def exported(key: tuple, fn: Callable, args: list, names: list[str]) -> Callable:
     """`fn` traced once per machine: from a JAX export in the lmjx cache folder when an
     earlier run saved one for this kernel (its key, lmjx's kernel sources, JAX's version and
@@ -46,9 +54,7 @@ def exported(key: tuple, fn: Callable, args: list, names: list[str]) -> Callable
     folder = cache_dir()
     if folder is None:
         return fn
-    dev = jax.devices()[0]
-    ident = repr((key, _code_version(), jax.__version__, dev.platform, getattr(dev, "device_kind", "")))
-    path = folder / "export" / (hashlib.sha256(ident.encode()).hexdigest() + ".jaxexport")
+    path = folder / "export" / (program_ident(key) + ".jaxexport")
     try:
         from jax import export
 
@@ -182,6 +188,7 @@ class ChunkedKernel:
         self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0, "place": 0.0}
         self.copied_bytes = 0  # copied off the devices by run()
         self._fn: Callable | None = None
+        self._lowered: tuple[jax.stages.Lowered, list[str], bool] | None = None  # `lower`'s, until compiled
         self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}  # the program's outputs
 
     def _results(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
@@ -207,9 +214,14 @@ class ChunkedKernel:
 
     def lower(self) -> tuple[jax.stages.Lowered, list[str]]:
         """The program lowered for launches of `chunk` items (what `compile` compiles), and
-        its output names; nothing is compiled or run."""
-        lowered, names, _ = self._lower()
-        return lowered, names
+        its output names; nothing is compiled or run.  Kept until the program is compiled,
+        which then needs no lowering of its own (a build looks its programs up in the
+        cache before compiling them)."""
+        with self._lock:
+            if self._lowered is None and self._fn is None:
+                self._lowered = self._lower()
+            lowered, names, _ = self._lowered if self._lowered is not None else self._lower()
+        return lowered, list(names)
 
     def _lower(self, export: bool = True) -> tuple[jax.stages.Lowered, list[str], bool]:
         """`lower`, and whether the program came from an export: with `export` (and not
@@ -270,8 +282,10 @@ class ChunkedKernel:
     def _build_locked(self) -> None:
         if self.placed in _COMPILED:
             self._fn, self._out = _COMPILED[self.placed]
+            self._lowered = None
             return
-        lowered, names, from_export = self._lower()
+        lowered, names, from_export = self._lowered if self._lowered is not None else self._lower()
+        self._lowered = None
         try:
             compiled = lowered.compile()
         except Exception:

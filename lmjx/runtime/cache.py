@@ -111,8 +111,17 @@ def in_jax_cache(lowered: Any) -> bool | None:
     if key is None:
         return None
     try:
-        from jax._src import compiler
+        return key_in_jax_cache(key, lowered._lowering.compile_args["backend"])
+    except Exception:  # another JAX's internals
+        return None
 
-        return bool(compiler._is_executable_in_cache(lowered._lowering.compile_args["backend"], key))
+
+def key_in_jax_cache(key: str, backend: Any = None) -> bool | None:
+    """Whether JAX's persistent compilation cache holds an entry under `key` (a
+    `jax_cache_key`) for `backend` (None: JAX's default).  None when it cannot tell."""
+    try:
+        from jax._src import compiler, xla_bridge
+
+        return bool(compiler._is_executable_in_cache(backend or xla_bridge.get_backend(), key))
     except Exception:  # another JAX's internals
         return None

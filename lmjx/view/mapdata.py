@@ -18,6 +18,7 @@ import h5py
 import numpy as np
 
 from lmjx.errors import MapFileError
+from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.lazystates import StateReader
 from lmjx.mapfile.read import load_map, robot_for_file
 from lmjx.mapfile.schema import SCHEMA, SCHEMA_VERSION, attr_str
@@ -94,7 +95,7 @@ class MapData:
             with load_map(p, lazy=True):  # raises its one-line error
                 pass
         try:
-            return h5py.File(p, "r")
+            return h5open(p, "r")
         except OSError as e:
             raise MapFileError(f"{p} is damaged or incomplete ({type(e).__name__}: {e}); rebuild the map") from None
 
