@@ -166,7 +166,7 @@ class _Unlowerable:
 
     key = "unlowerable"
 
-    def lower(self):
+    def lower(self, keep: bool = True):
         raise RuntimeError("lowered")
 
 
@@ -213,7 +213,7 @@ class _Slow:
 
     key = "slow"
 
-    def lower(self):
+    def lower(self, keep: bool = True):
         return self, []
 
     def compile(self) -> None:

@@ -128,7 +128,7 @@ class PresetCompiler:
                 if self._stop.is_set():
                     return
                 t0 = time.perf_counter()
-                lowered, _ = kernel.lower()
+                lowered, _ = kernel.lower(keep=False)  # (compiled here, not by the kernel)
                 keys.append(jax_cache_key(lowered))
                 if keys[-1] is not None and key_in_jax_cache(keys[-1], lowered._lowering.compile_args["backend"]):
                     self.cached.append(f"{spec} {stage}")

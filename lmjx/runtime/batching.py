@@ -21,6 +21,9 @@ import numpy as np
 _COMPILED: dict[tuple, tuple[Callable, dict[str, tuple[tuple[int, ...], np.dtype]]]] = {}
 _COMPILING: dict[tuple, threading.Lock] = {}  # one lock per program: threads wanting it compile it once
 _COMPILING_LOCK = threading.Lock()
+# programs lowered (`ChunkedKernel.lower`) and not compiled yet, by `placed`: their compile
+# takes them instead of lowering again, whichever kernel of the program compiles it
+_LOWERED: dict[tuple, tuple[jax.stages.Lowered, list[str], bool]] = {}
 KEEP_BLOCKS = 16  # blocks a device returns its kept rows in (see ChunkedKernel)
 
 
@@ -188,7 +191,6 @@ class ChunkedKernel:
         self.timing = {"device_wait": 0.0, "to_host": 0.0, "mask": 0.0, "place": 0.0}
         self.copied_bytes = 0  # copied off the devices by run()
         self._fn: Callable | None = None
-        self._lowered: tuple[jax.stages.Lowered, list[str], bool] | None = None  # `lower`'s, until compiled
         self._out: dict[str, tuple[tuple[int, ...], np.dtype]] = {}  # the program's outputs
 
     def _results(self) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
@@ -212,15 +214,22 @@ class ChunkedKernel:
                     self._build_locked()
                 self.compile_seconds += time.perf_counter() - t0
 
-    def lower(self) -> tuple[jax.stages.Lowered, list[str]]:
+    def lower(self, keep: bool = True) -> tuple[jax.stages.Lowered, list[str]]:
         """The program lowered for launches of `chunk` items (what `compile` compiles), and
-        its output names; nothing is compiled or run.  Kept until the program is compiled,
-        which then needs no lowering of its own (a build looks its programs up in the
-        cache before compiling them)."""
+        its output names; nothing is compiled or run.  With `keep`, kept until the program
+        is compiled, which then needs no lowering of its own (a build looks its programs up
+        in the cache before compiling them)."""
         with self._lock:
-            if self._lowered is None and self._fn is None:
-                self._lowered = self._lower()
-            lowered, names, _ = self._lowered if self._lowered is not None else self._lower()
+            if keep and self._fn is None and self.placed not in _COMPILED:
+                with _COMPILING_LOCK:
+                    kept = _LOWERED.get(self.placed)
+                if kept is None:
+                    kept = self._lower()
+                    with _COMPILING_LOCK:
+                        _LOWERED[self.placed] = kept
+            else:
+                kept = self._lower()
+        lowered, names, _ = kept
         return lowered, list(names)
 
     def _lower(self, export: bool = True) -> tuple[jax.stages.Lowered, list[str], bool]:
@@ -282,10 +291,10 @@ class ChunkedKernel:
     def _build_locked(self) -> None:
         if self.placed in _COMPILED:
             self._fn, self._out = _COMPILED[self.placed]
-            self._lowered = None
             return
-        lowered, names, from_export = self._lowered if self._lowered is not None else self._lower()
-        self._lowered = None
+        with _COMPILING_LOCK:
+            kept = _LOWERED.pop(self.placed, None)
+        lowered, names, from_export = kept if kept is not None else self._lower()
         try:
             compiled = lowered.compile()
         except Exception:
