@@ -2,6 +2,14 @@
 feeds it): the saved chunks appended in order to the map being written, the spatial index
 sorted from them at the end, then the closed map's content digest.
 
+The digest (`mapfile.digest`) is computed without decompressing the map: its first datasets
+in the digest's order, the edges' durations and the index's edge ids, are hashed as they are
+written (the index on a thread of its own, beside its compression), and the edge states (most
+of the map's bytes) from the chunk files, which hold them raw and stay in the partial folder
+until the map is moved into place; the other datasets (small) are read from the closed map.
+Where the closed map is not what that assumes (its datasets' names, dtypes, shapes, a chunk
+file missing or of other rows), the digest is computed from the map as `content_digest` does.
+
 It imports h5py, numpy and lmjx's map-file code only, never JAX or the robot's model
 (`python -X importtime -c "import lmjx.edges.mapappend"`), so that it starts in a fraction
 of a second: its job (`Job`) holds plain values.
@@ -11,12 +19,15 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import signal
 import threading
 import time
 import traceback
+from collections.abc import Callable, Generator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -25,9 +36,9 @@ import numpy as np
 
 from lmjx.edges import chunkfile
 from lmjx.errors import LmjxError
-from lmjx.mapfile.digest import content_digest
+from lmjx.mapfile.digest import Given, NotAsGivenError, RunningDigest, content_digest
 from lmjx.mapfile.h5 import h5open
-from lmjx.mapfile.schema import PER_EDGE
+from lmjx.mapfile.schema import PER_EDGE, PER_STATE
 from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index
 from lmjx.runtime import threadprof
 
@@ -71,15 +82,16 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
         return
     sampler = threadprof.from_environment()  # LMJX_THREAD_PROFILE: this process's threads too
     try:
-        result = _Appender(job, inbox).run()
+        appender = _Appender(job, inbox)
+        result = appender.run()
         if sampler is not None:
             result["threads"] = sampler.stop() | {"process": "writer"}
         outbox.send(("done", result, ""))
         # the closed map's content digest, while the build's process computes its push counts
         # (it adds both: the digest leaves the push counts out)
         t0 = time.perf_counter()
-        digest, _ = content_digest(job.tmp)
-        outbox.send(("digest", (digest, time.perf_counter() - t0), ""))
+        digest, source = appender.digest()
+        outbox.send(("digest", (digest, time.perf_counter() - t0, source), ""))
     except (EOFError, BrokenPipeError):
         return  # the build's process is gone
     except BaseException as e:
@@ -97,12 +109,19 @@ class _Appender:
     def __init__(self, job: Job, inbox) -> None:
         self.job, self.inbox = job, inbox
         self.ready: set[tuple[int, int]] = set()  # units the build's process says are saved
+        # ("digest_index": hashing the index's edge ids for the digest, beside their writing)
         self.timing = {"waits": 0.0, "read": 0.0, "write_states": 0.0, "write_edges": 0.0, "index": 0.0,
-                       "close": 0.0}  # fmt: skip
+                       "close": 0.0, "digest_index": 0.0}  # fmt: skip
         self.totals = {"counts": np.zeros(job.grid.nx * job.grid.ny, np.int64), "rejected": np.zeros(len(job.reasons),
                        np.int64), "rolled_out": 0, "evaluated": 0, "states": 0, "first_edge": []}  # fmt: skip
         self.file = h5open(job.tmp, "r+")  # its head written by the build's process
         self.w = EdgeWriter(self.file, None, None, job.nq, threads=job.threads)  # (its /edges made)
+        # for the digest: each chunk's edge durations as /edges/duration holds them (4 bytes an
+        # edge), each chunk's rows of every state array, the states' datasets' names
+        self.durations: list[np.ndarray] = []
+        self.state_rows: dict[str, list[int]] = {k: [] for k in PER_STATE}
+        self.state_names = {k: self.w.columns[k].ds.name[1:] for k in PER_STATE}
+        self.running: RunningDigest | None = None  # the digest's first datasets, fed as written
 
     def _next_unit(self) -> None:
         kind, *rest = self.inbox.recv()
@@ -153,6 +172,9 @@ class _Appender:
         starts = np.concatenate([[0], np.cumsum(length)[:-1]]).astype(np.int64)
         q_start = c["q"][starts] if len(length) else np.zeros((0, self.job.nq), np.float32)
         self.w.add_edges({name: q_start if name == "q_start" else c[name] for name in PER_EDGE})
+        self.durations.append(np.array(c["duration"], self.w.columns["duration"].dtype))  # (a copy: as written)
+        for k, rows in self.state_rows.items():
+            rows.append(len(c[k]))
         t["counts"] += np.bincount(c["index_cell"], minlength=len(t["counts"]))
         t["rejected"] += c["rejected"]
         t["rolled_out"] += head["rolled_out"]
@@ -167,7 +189,9 @@ class _Appender:
         offset = np.zeros(len(t["counts"]) + 1, np.int64)
         offset[1:] = np.cumsum(t["counts"])
         ds = write_index(self.w.group, job.grid, offset, None)
-        write_index_edges(ds, job.folder, job.ranges, t["first_edge"], offset)
+        self.running = self._digest_head(ds)
+        write_index_edges(ds, job.folder, job.ranges, t["first_edge"], offset,
+                          self._hash_index if self.running is not None else None)  # fmt: skip
         t1 = time.perf_counter()
         rejected = {r: int(k) for r, k in zip(job.reasons, t["rejected"], strict=True)}
         steps = t["rolled_out"] * job.steps
@@ -179,6 +203,62 @@ class _Appender:
         return {"edges_sampled": job.n, "edges_valid": self.w.n_edges, "states": t["states"], "rejected": rejected,
                 "edge_steps": steps, "states_evaluated": t["evaluated"], "timing": self.timing,
                 "threads_used": job.threads, "peak_rss": peak_rss(), **sizes}  # fmt: skip
+
+    def _digest_head(self, index: h5py.Dataset) -> RunningDigest | None:
+        """The digest begun with the datasets that sort before the others: the edges'
+        durations (kept as appended), then the index's edge ids' head (their rows follow as
+        they are written).  None where the map has no durations (no chunk appended)."""
+        col = self.w.columns.get("duration")
+        if col is None:
+            return None
+        durations = np.concatenate(self.durations) if self.durations else np.zeros(0, col.dtype)
+        self.durations = []
+        running = RunningDigest()
+        running.begin(col.ds.name[1:], col.dtype, durations.shape)
+        running.update(durations)
+        running.begin(index.name[1:], index.dtype, index.shape)
+        return running
+
+    def _hash_index(self, edges: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        self.running.update(edges)
+        self.timing["digest_index"] += time.perf_counter() - t0
+
+    def digest(self) -> tuple[str, str]:
+        """The closed map's content digest, and where its states were read: "chunk files" (the
+        states hashed from the chunk files, which hold them raw, instead of decompressing the
+        map; the durations and the index fed as they were written) or "map" (the map is not
+        what that assumes, or a chunk file is gone: `content_digest`, from the map alone)."""
+        if self.running is not None:
+            given = {self.state_names[k]: Given(np.dtype(np.float32), (sum(rows), self.w.widths[k]),
+                                                partial(self._chunk_states, k))
+                     for k, rows in self.state_rows.items()}  # fmt: skip
+            try:
+                value = self.running.finish(self.job.tmp, given)
+            except chunkfile.ChunkFileError:
+                value = None
+            if value is not None:
+                return value, "chunk files"
+        return content_digest(self.job.tmp)[0], "map"
+
+    def _chunk_states(self, name: str) -> Generator[np.ndarray, None, None]:
+        """State array `name` (q, qd or p) of every chunk, in order, as `add_states` appended it
+        (as float32), READ_AHEAD chunks read ahead on threads (reading and hashing release the
+        interpreter lock: they overlap); `NotAsGivenError` where a chunk's rows are not those appended."""
+        job = self.job
+        pool = ThreadPoolExecutor(READ_AHEAD, thread_name_prefix="lmjx-digest-read")
+        reads = (pool.submit(chunkfile.read, job.folder, a, b, (name,)) for a, b in job.ranges)
+        window = collections.deque(itertools.islice(reads, READ_AHEAD))
+        try:
+            for rows in self.state_rows[name]:
+                arrays, _ = window.popleft().result()
+                window.extend(itertools.islice(reads, 1))
+                block = np.asarray(arrays[name], np.float32)
+                if len(block) != rows:
+                    raise NotAsGivenError(f"{name}: {len(block)} rows in a chunk file, {rows} appended")
+                yield block
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def annotated(e: BaseException, trace: str) -> BaseException:
@@ -204,13 +284,35 @@ def peak_rss() -> int:
 
 
 def write_index_edges(
-    ds: h5py.Dataset, folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+    ds: h5py.Dataset,
+    folder: Path,
+    ranges: list[tuple[int, int]],
+    first_edge: list[int],
+    offset: np.ndarray,
+    hash_out: Callable[[np.ndarray], None] | None = None,
 ) -> None:
     """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
     range at most INDEX_PAIRS pairs, read from every saved chunk).  Each chunk's pairs are
     sorted by (cell, edge) and the chunks come in edge order, so every pair's place is
     known without sorting: its cell's start (`offset`), plus the pairs earlier chunks put
-    there, plus its rank among its chunk's pairs of that cell."""
+    there, plus its rank among its chunk's pairs of that cell.  `hash_out`: given each
+    range's ids in order, on a thread of its own while they are compressed and written."""
+    with ThreadPoolExecutor(1, thread_name_prefix="lmjx-digest") as hasher:
+        hashing = None
+        for lo, out in _index_ranges(folder, ranges, first_edge, offset):
+            if hash_out is not None:
+                if hashing is not None:
+                    hashing.result()  # (one range's ids held for it at a time)
+                hashing = hasher.submit(hash_out, out)
+            ds[lo : lo + len(out)] = out
+        if hashing is not None:
+            hashing.result()
+
+
+def _index_ranges(
+    folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+) -> Generator[tuple[int, np.ndarray], None, None]:
+    """(first place, edge ids) of each range of cells with pairs, in order (`write_index_edges`)."""
     n_cells = len(offset) - 1
     c0 = 0
     while c0 < n_cells:
@@ -230,5 +332,5 @@ def write_index_edges(
             out[fill[c] + rank] = edge[lo:hi] + np.int32(e0)
             fill += count
         if len(out):
-            ds[offset[c0] : offset[c1]] = out
+            yield int(offset[c0]), out
         c0 = c1

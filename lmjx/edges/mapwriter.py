@@ -8,8 +8,9 @@ with their spatial-index entries (`bundle.pack_chunk`) and save them to the part
 The writing process (`writer_process`: a clean interpreter, with its own interpreter
 lock) reads the chunk files ahead on a few threads, appends them in order to
 `<partial>/map-<pid>.h5.tmp` with `mapfile.EdgeWriter` (compression and chunk writes on its own
-threads), at the end sorts the spatial index from the chunk files, and, the map closed, reads
-it back for its content digest while the build's process computes its push counts from it
+threads), at the end sorts the spatial index from the chunk files, and, the map closed,
+completes its content digest (from the chunk files and the map's small datasets:
+`mapappend`) while the build's process computes its push counts from it
 (the build's process adds both before the map is moved into place).  Measured on 2 H200s
 (benchmarks/RESULTS.md): in the build's process, beside some 45 busy threads, the
 HDF5 writes waited on the interpreter lock and on h5py's lock in turn, and the map writer
@@ -276,8 +277,8 @@ class MapWriter:
         w = self._receive("done")
         t1 = time.perf_counter()
         self.parts["drain"] = t1 - t0  # the writing left when the rollouts end
-        # The map is closed: the writing process reads it back for its content digest
-        # (`mapfile.digest`, so that evaluations need not) while this one computes the push
+        # The map is closed: the writing process completes its content digest (`mapfile.digest`,
+        # so that evaluations need not read the map for it) while this one computes the push
         # counts of the robot's built-in scenarios (their keys, the counts summed over the
         # chunks already; a resumed build's from the map, here where JAX computes); both are
         # added to the map before it is moved to `out`.
@@ -286,7 +287,7 @@ class MapWriter:
         if summed is not None:  # the packers' share, summed over them
             self.parts["push_chunks"] = summed.seconds
         t2 = time.perf_counter()
-        digest, self.parts["digest"] = self._receive("digest")
+        digest, self.parts["digest"], digest_from = self._receive("digest")
         self.parts["digest_wait"] = time.perf_counter() - t2
         self.proc.wait()
         self.to_writer.close()
@@ -323,6 +324,8 @@ class MapWriter:
             "finish_seconds": round(w["timing"]["index"] + w["timing"]["close"], 4),
             "push_seconds": push["push_seconds"],
             "writer_timing": {k: round(v, 4) for k, v in {**w["timing"], **self.parts}.items()},
+            # where the content digest read the edge states: "chunk files" (raw), or "map" (`mapappend.digest`)
+            "digest_from": digest_from,
             "edge_steps_per_s": round(w["edge_steps"] / max(kernels["rollout_seconds"], 1e-9), 1),
             # each process's own high-water mark (their sum bounds the build's)
             "peak_memory_gb": {"build": round(peak_rss() / 1e9, 3), "writer": round(w["peak_rss"] / 1e9, 3)},
