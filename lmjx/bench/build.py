@@ -68,9 +68,9 @@ def build_row(summary: dict, wall: float) -> dict:
         "rollout": e["rollout_seconds"],
         "index": e["index"].get("seconds", 0.0),
         "push": e["push_seconds"],
-        # the writing process's own work and the map's read-back (its wait for the digest,
-        # computed beside the push counts, where the summary has it) and move: what the build
-        # waits for once the edges are done
+        # the writing process's own work, its content digest (the wait for it, computed beside
+        # the push counts, where the summary has it) and the move: what the build waits for
+        # once the edges are done
         "write": e["write_seconds"] + e["finish_seconds"] + timing.get("digest_wait", timing.get("digest", 0.0))
         + timing.get("replace", 0.0) + timing.get("remove_partial", 0.0),
         "compile": summary["compile_seconds"],

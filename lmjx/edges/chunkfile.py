@@ -1,7 +1,8 @@
 """The chunk files of a streamed build's partial folder (`<out>.partial/edges-<a>-<b>.chunk`):
 one packed chunk of sampled edges [a, b) each, kept until the map is finished so that a
 killed build resumes from them, read back by the map-writing process (`mapwriter`), and
-read again at the end to sort the spatial index.
+read again at the end to sort the spatial index and to hash the map's states for its
+content digest (`mapappend`: the bytes the map holds, without decompressing it).
 
 A file is a header and the chunk's arrays, raw, each starting at a multiple of 64 bytes:
 
