@@ -104,14 +104,16 @@ class BuildPushCounts:
 
     def add(self, length: np.ndarray, q: np.ndarray, workers: int = 1) -> None:
         """Count a chunk's valid edges: `length` (E,) states each, `q` (S, nq) their states
-        in order.  `workers`: threads for the chunk's push samples."""
+        in order.  `workers`: threads for the chunk's push samples and direction tests (the
+        build's packers call it side by side, one thread each)."""
         t0 = time.perf_counter()
         states = ChunkStates.of(length, q)
         samples = push_samples(self.robot, states, self.reach, HEIGHT, workers=workers)  # type: ignore[arg-type]
         cuts = self._fixed_cuts()
         counts = np.zeros_like(self.counts)
         for i, ((_, _, sc), field, cut) in enumerate(zip(self.scenarios, self.fields, cuts, strict=True)):
-            hit = _group_hits(samples, self.robot, self.failure, states, sc, field, MAX_ANGLE, cut)  # type: ignore[arg-type]
+            hit = _group_hits(samples, self.robot, self.failure, states, sc, field, MAX_ANGLE, cut,  # type: ignore[arg-type]
+                              threads=workers)  # fmt: skip
             counts[i] = np.bincount(samples.group_cell[hit], minlength=self.reach.labels.size)
         with self._lock:
             self.counts += counts

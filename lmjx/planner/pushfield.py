@@ -211,13 +211,15 @@ def _group_hits(
     field: GoalField,
     max_angle: float,
     cut: FixedCut | None = None,
+    threads: int | None = None,
 ) -> np.ndarray:
     """(G,) whether each (edge, cell) group of samples holds one that pushes toward the
     goal before the edge's cut at a fixed obstacle, its start clear of them (`cut`: the
-    scenario's `fixed_cut`, made here when not given)."""
+    scenario's `fixed_cut`, made here when not given; `threads`: the direction test's,
+    default all cores)."""
     if not len(s):
         return np.zeros(0, bool)
-    ok = _toward(s, field, max_angle)
+    ok = _toward(s, field, max_angle, threads)
     if sc.fixed:
         edge = s.sample_edge()
         prefix = _prefixes(s, edge, ok, bundle, cut or fixed_cut(robot, failure, sc))
@@ -225,24 +227,25 @@ def _group_hits(
     return np.logical_or.reduceat(ok, s.group_start)
 
 
-def _toward(s: PushSamples, field: GoalField, max_angle: float) -> np.ndarray:
-    """(n,) whether each sample's motion lies within `max_angle` of the field's descent (its
-    gradient by central differences, at the field cell under the sample), in parts on all
-    cores (numpy's loops leave the interpreter lock)."""
+def _toward(s: PushSamples, field: GoalField, max_angle: float, threads: int | None = None) -> np.ndarray:
+    """(n,) whether each sample's motion (`PushSamples.motion`, shared by the scenarios)
+    lies within `max_angle` of the field's descent (its gradient by central differences, at
+    the field cell under the sample), in parts on `threads` cores (default all: numpy's
+    loops leave the interpreter lock)."""
     gy, gx = np.gradient(field.values, field.cell)
     g0, g1 = (-gx).ravel(), (-gy).ravel()  # the descent
     gn = np.hypot(g0, g1)
     cos_min = math.cos(math.radians(max_angle))
     cell = s.field_index(field.lo, field.cell, field.shape)
+    v0, v1, speed = s.motion()
     out = np.empty(len(s), bool)
 
     def part(a: int, b: int) -> None:
-        p, pn, fc = s.p[a:b].astype(np.float64), s.p_next[a:b].astype(np.float64), cell[a:b]
-        v0, v1 = pn[:, 0] - p[:, 0], pn[:, 1] - p[:, 1]
-        speed, n = np.hypot(v0, v1), gn[fc]
-        out[a:b] = (v0 * g0[fc] + v1 * g1[fc] >= cos_min * speed * n) & (n > 0)
+        fc = cell[a:b]
+        n = gn[fc]
+        out[a:b] = (v0[a:b] * g0[fc] + v1[a:b] * g1[fc] >= cos_min * speed[a:b] * n) & (n > 0)
 
-    threads = usable_cores()
+    threads = threads or usable_cores()
     cuts = np.linspace(0, len(s), threads + 1).astype(np.int64)
     if threads == 1 or len(s) < PARALLEL_SAMPLES:
         part(0, len(s))

@@ -58,6 +58,7 @@ class PushSamples:
     runs: int = 0  # runs of edges the device took
     device_calls: int = 0  # its calls: a run over the budget took more
     _field_index: dict = field(default_factory=dict, repr=False)  # goal-field grid -> each sample's cell in it
+    _motion: tuple | None = field(default=None, repr=False)  # `motion`'s arrays, once computed
 
     def __len__(self) -> int:
         return len(self.k)
@@ -65,6 +66,15 @@ class PushSamples:
     def sample_edge(self) -> np.ndarray:
         """(n,) each sample's edge."""
         return np.repeat(self.group_edge, np.diff(np.append(self.group_start, len(self.k))))
+
+    def motion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(v0, v1, speed), (n,) float64 each: every sample's motion from p to p_next and its
+        length, computed once (each scenario's direction test reads them)."""
+        if self._motion is None:
+            p, pn = self.p.astype(np.float64), self.p_next.astype(np.float64)
+            v0, v1 = pn[:, 0] - p[:, 0], pn[:, 1] - p[:, 1]
+            self._motion = (v0, v1, np.hypot(v0, v1))
+        return self._motion
 
     def field_index(self, lo: np.ndarray, cell: float, shape: tuple[int, int]) -> np.ndarray:
         """(n,) int64 each sample's cell iy * nx + ix in a goal field's grid (`GoalField`:
