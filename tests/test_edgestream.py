@@ -338,10 +338,11 @@ def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkey
     offset = np.zeros(n_cells + 1, np.int64)
     offset[1:] = np.cumsum(np.bincount(cell, minlength=n_cells))
     monkeypatch.setattr(mapappend, "INDEX_PAIRS", 97)
-    with h5py.File(tmp_path / "index.h5", "w") as f:
-        ds = f.create_dataset("edges", (len(want),), np.int32)
-        mapappend.write_index_edges(ds, tmp_path, ranges, first, offset)
-        assert np.array_equal(ds[...], want)
+    with h5py.File(tmp_path / "index.h5", "w") as f:  # stored as a map's index (chunks of 64 here), read by HDF5
+        ds = f.create_dataset("edges", (len(want),), np.int32, chunks=(64,), compression="gzip", shuffle=True,
+                              fletcher32=True)  # fmt: skip
+        mapappend.write_index_edges(ds, tmp_path, ranges, first, offset, threads=3)
+        assert len(want) % 64 and np.array_equal(ds[...], want)
 
 
 def test_the_writing_process_starts_light_and_ends_unused():

@@ -83,3 +83,27 @@ def test_damaged_edge_file_is_refused(small_map, tmp_path):
         del f["edges/q"]
     with pytest.raises(MapFileError, match="damaged or incomplete"):
         load_map(bad)
+
+
+def test_files_being_written_hold_no_lock(tmp_path):
+    """lmjx opens the files it writes without HDF5's locks (`lmjx.mapfile.h5`): a process that
+    inherited or shares the descriptor of a file being written (a compiler's child) leaves
+    no lock behind.  While one is open to write here, another process opens it to read
+    with HDF5's locks; with h5py's default there, it could not (errno 11)."""
+    import subprocess
+    import sys
+
+    from lmjx.mapfile.h5 import h5open
+
+    path = tmp_path / "w.h5"
+    probe = [sys.executable, "-c", "import h5py, sys; h5py.File(sys.argv[1], 'r', locking=True).close()", str(path)]
+    with h5open(path, "w") as f:
+        f["x"] = np.arange(3)
+        f.flush()
+        assert subprocess.run(probe, capture_output=True).returncode == 0
+    with h5py.File(path, "w", locking=True) as f:  # (what the probe meets without lmjx's open)
+        f["x"] = np.arange(3)
+        f.flush()
+        assert subprocess.run(probe, capture_output=True).returncode != 0
+    with h5open(path) as f, h5py.File(path, "r") as g:  # to read: as h5py opens it (the same locking)
+        assert np.array_equal(f["x"][...], g["x"][...])

@@ -39,7 +39,7 @@ from lmjx.errors import LmjxError
 from lmjx.mapfile.digest import Given, NotAsGivenError, RunningDigest, content_digest
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import PER_EDGE, PER_STATE
-from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index
+from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index, write_rows
 from lmjx.runtime import threadprof
 
 INDEX_PAIRS = 64 * 2**20  # spatial-index pairs placed at a time when assembling (256 MB of edge ids)
@@ -191,7 +191,7 @@ class _Appender:
         ds = write_index(self.w.group, job.grid, offset, None)
         self.running = self._digest_head(ds)
         write_index_edges(ds, job.folder, job.ranges, t["first_edge"], offset,
-                          self._hash_index if self.running is not None else None)  # fmt: skip
+                          self._hash_index if self.running is not None else None, job.threads)  # fmt: skip
         t1 = time.perf_counter()
         rejected = {r: int(k) for r, k in zip(job.reasons, t["rejected"], strict=True)}
         steps = t["rolled_out"] * job.steps
@@ -290,23 +290,29 @@ def write_index_edges(
     first_edge: list[int],
     offset: np.ndarray,
     hash_out: Callable[[np.ndarray], None] | None = None,
+    threads: int = 1,
 ) -> None:
     """The index's edge ids, sorted by cell then edge, a range of cells at a time (each
     range at most INDEX_PAIRS pairs, read from every saved chunk).  Each chunk's pairs are
     sorted by (cell, edge) and the chunks come in edge order, so every pair's place is
     known without sorting: its cell's start (`offset`), plus the pairs earlier chunks put
-    there, plus its rank among its chunk's pairs of that cell.  `hash_out`: given each
-    range's ids in order, on a thread of its own while they are compressed and written."""
+    there, plus its rank among its chunk's pairs of that cell.  Compressed and written on
+    `threads` threads (`write_rows`); `hash_out`: given each range's ids in order, on a
+    thread of its own meanwhile."""
     with ThreadPoolExecutor(1, thread_name_prefix="lmjx-digest") as hasher:
-        hashing = None
-        for lo, out in _index_ranges(folder, ranges, first_edge, offset):
-            if hash_out is not None:
-                if hashing is not None:
-                    hashing.result()  # (one range's ids held for it at a time)
-                hashing = hasher.submit(hash_out, out)
-            ds[lo : lo + len(out)] = out
-        if hashing is not None:
-            hashing.result()
+        hashing: list = []
+
+        def ranges_out():
+            for _, out in _index_ranges(folder, ranges, first_edge, offset):
+                if hash_out is not None:
+                    if hashing:
+                        hashing.pop().result()  # (one range's ids held for it at a time)
+                    hashing.append(hasher.submit(hash_out, out))
+                yield out
+
+        write_rows(ds, ranges_out(), threads)
+        if hashing:
+            hashing.pop().result()
 
 
 def _index_ranges(
