@@ -59,14 +59,14 @@ class StageRates:
 # map) with the programs cached, and with an empty cache (compile_s; the push counts' programs
 # compile in the packer beside the rollouts); cores shared with other work slow every stage
 # (at a load average of 8-15, 3-5x).
-# gpu: one H200 with 16 host cores, `lmjx build-map --json` of 100,000, 150,000, 1,000,000
-# and 5,000,000 case-2 edges with the programs cached (wall 5.9-6.6 s, 6.5 s, 15.5 s, 56.2 s:
-# 10.35 s per million edges beyond 4.5 s; the index 4.2 M states/s; the push counts, summed
-# by the packers beside the rollouts, leave 40 M states/s at the end; packing and writing
-# left after the rollouts 5 M states/s; 2.1 s of cache loads; 2.4 s of start-up and fixed
-# costs) and a cold 100,000-edge build (compile_s: the edges' include the other presets'
-# programs compiled ahead for later builds, which the build waits for); the rollouts at the
-# builds' 18 M edge-steps/s.  The host stages scale with the host's cores, not the GPUs.
+# gpu: one H200 with 16 host cores, `lmjx build-map --json` of 100,000, 1,000,000 and
+# 5,000,000 case-2 edges with the programs cached (wall 5.5-5.6 s, 11.7 s, 38.5 s: 6.7 s per
+# million edges beyond 5 s) and a cold 100,000-edge build (compile_s: the edges' include the
+# other presets' programs compiled ahead for later builds, which the build waits for).  The
+# IK and rollouts at the builds' own rates (18 M edge-steps/s); the index, the push counts
+# and the packing and writing are done by the packers beside the rollouts, and count here
+# by what they add to the wall (10 M, 40 M and 40 M states/s); 2.1 s of cache loads, 2.8 s of
+# start-up and fixed costs.
 RATES = {
     "cpu": StageRates(
         where="a 2-core CPU",
@@ -85,13 +85,13 @@ RATES = {
     "gpu": StageRates(
         where="an H200",
         cores=16,
-        startup_s=2.4,
+        startup_s=2.8,
         reach_problems_per_s=4_000_000.0,
         ik_problems_per_s=8_000_000.0,
         edge_steps_per_s=18_000_000.0,
-        index_states_per_s=4_200_000.0,
+        index_states_per_s=10_000_000.0,
         push_states_per_s=40_000_000.0,
-        write_states_per_s=5_000_000.0,
+        write_states_per_s=40_000_000.0,
         overlap=1.0,
         compile_s={"reach": 10.0, "edges": 70.0, "index": 7.0, "push": 8.0},
         cached_s={"reach": 0.7, "edges": 0.8, "index": 0.6, "push": 0.0},
