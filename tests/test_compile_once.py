@@ -201,6 +201,25 @@ def test_a_record_spares_looking_the_presets_up(tmp_path):
     assert named is not None and named.parent.name == "programs" and preset_record([]) is None
 
 
+def test_a_record_is_named_by_what_jax_keys_hold(monkeypatch):
+    """A record is read without lowering its programs: one made under other XLA flags or
+    JAX settings (whose programs JAX keys apart) is another record, not this one."""
+    programs = [("f", "test", _kernel(1.0))]
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    named = preset_record(programs)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_hlo_as_text")
+    flagged = preset_record(programs)
+    monkeypatch.delenv("XLA_FLAGS")
+    before = jax.config.jax_default_matmul_precision
+    jax.config.update("jax_default_matmul_precision", "highest")
+    try:
+        precise = preset_record(programs)
+    finally:
+        jax.config.update("jax_default_matmul_precision", before)
+    assert named is not None and len({named, flagged, precise}) == 3
+    assert preset_record(programs) == named
+
+
 def test_a_stopped_compiler_starts_no_program():
     compiler = PresetCompiler([("f", "test", _kernel(1.0)), ("g", "test", _kernel(2.0))])
     compiler.stop()

@@ -77,12 +77,28 @@ def preset_programs(
 def preset_record(programs: list[tuple[str, str, ChunkedKernel]]) -> Path | None:
     """Where the record that `programs` are all in JAX's persistent cache is kept: a file in
     the cache folder named by the programs (`program_ident`: their keys, lmjx's kernel
-    sources, JAX's version, the platform); None without a cache folder."""
+    sources, JAX's version, the platform) and by what else JAX's cache keys hold
+    (`compile_setting`); None without a cache folder."""
     folder = cache_dir()
     if folder is None or not programs:
         return None
-    names = "\n".join(program_ident(kernel.key) for _, _, kernel in programs)
+    names = "\n".join([compile_setting(), *(program_ident(kernel.key) for _, _, kernel in programs)])
     return folder / "programs" / (hashlib.sha256(names.encode()).hexdigest() + ".json")
+
+
+def compile_setting() -> str:
+    """What makes JAX's cache key of a program that `program_ident` leaves out: jaxlib's
+    version, the backend's (its driver and plugin), XLA's flags and the JAX settings that
+    change a trace.  A record is read without lowering its programs: where one of these
+    changed, the keys it holds are the old programs', still in the cache, not those a
+    build would compile now."""
+    import jax
+    import jaxlib
+
+    backend = jax.devices()[0].client
+    return repr((jaxlib.__version__, getattr(backend, "platform_version", ""), os.environ.get("XLA_FLAGS", ""),
+                 os.environ.get("LIBTPU_INIT_ARGS", ""), bool(jax.config.jax_enable_x64),
+                 str(jax.config.jax_default_matmul_precision)))  # fmt: skip
 
 
 @dataclass
