@@ -220,6 +220,37 @@ def test_a_record_is_named_by_what_jax_keys_hold(monkeypatch):
     assert preset_record(programs) == named
 
 
+def test_a_kept_lowering_is_compiled_once_and_dropped(monkeypatch):
+    """A program lowered to look it up (`lower`) is compiled from that lowering by whichever
+    kernel of it compiles, and dropped then; a lowering kept while another kernel compiled
+    the program is not kept for ever."""
+    constant = float(int.from_bytes(os.urandom(3), "little"))
+    first, second = _kernel(constant), _kernel(constant)
+    first.lower()
+    assert first.placed in lmjx.runtime.batching._LOWERED
+
+    def unlowerable(*args, **kwargs):
+        raise AssertionError("lowered again")
+
+    monkeypatch.setattr(second, "_lower", unlowerable)
+    second.compile()  # from the lowering `first` kept
+    assert first.placed not in lmjx.runtime.batching._LOWERED and first.placed in lmjx.runtime.batching._COMPILED
+
+    late, other = _kernel(constant + 1), _kernel(constant + 1)
+    lower = late._lower
+
+    def lower_while_compiled(*args, **kwargs):
+        out = lower(*args, **kwargs)
+        thread = threading.Thread(target=other.compile)  # another kernel of the program, meanwhile
+        thread.start()
+        thread.join()
+        return out
+
+    monkeypatch.setattr(late, "_lower", lower_while_compiled)
+    late.lower()
+    assert late.placed in lmjx.runtime.batching._COMPILED and late.placed not in lmjx.runtime.batching._LOWERED
+
+
 def test_a_stopped_compiler_starts_no_program():
     compiler = PresetCompiler([("f", "test", _kernel(1.0)), ("g", "test", _kernel(2.0))])
     compiler.stop()

@@ -226,7 +226,8 @@ class ChunkedKernel:
                 if kept is None:
                     kept = self._lower()
                     with _COMPILING_LOCK:
-                        _LOWERED[self.placed] = kept
+                        if self.placed not in _COMPILED:  # (another kernel of it may have compiled it meanwhile)
+                            _LOWERED[self.placed] = kept
             else:
                 kept = self._lower()
         lowered, names, _ = kept
@@ -306,7 +307,9 @@ class ChunkedKernel:
         # shapes come from the program.
         self._out = {k: (tuple(v.shape[1:]), np.dtype(v.dtype)) for k, v in zip(names, compiled.out_info, strict=True)}
         self._fn = compiled
-        _COMPILED[self.placed] = (compiled, self._out)
+        with _COMPILING_LOCK:
+            _COMPILED[self.placed] = (compiled, self._out)
+            _LOWERED.pop(self.placed, None)  # a lowering kept meanwhile (`lower`): never compiled now
 
     def _put(self, x: np.ndarray) -> jax.Array:
         if self.device is not None:
