@@ -59,15 +59,17 @@ class _Inbox:
         return False
 
 
-def _written(tmp_path: Path, head_extra: str | None = None) -> mapappend._Appender:
+def _written(
+    tmp_path: Path, head_extra: str | None = None, edges: tuple[int, ...] = (40, 0, 25, 60)
+) -> mapappend._Appender:
     """A map written by the writing process's code in this process from random chunk files (one
     without valid edges), its index in several ranges; `head_extra`: a dataset added to the
-    map's head."""
+    map's head; `edges`: each chunk's valid edges."""
     folder = tmp_path / "partial"
     folder.mkdir()
     rng = np.random.default_rng(5)
     ranges = [(0, 100), (100, 200), (200, 300), (300, 400)]
-    for (a, b), n_edges in zip(ranges, (40, 0, 25, 60), strict=True):
+    for (a, b), n_edges in zip(ranges, edges, strict=True):
         chunkfile.save(folder, _chunk(rng, a, b, n_edges))
     tmp = folder / "map.h5.tmp"
     with h5py.File(tmp, "w", track_order=True) as f:
@@ -98,6 +100,17 @@ def test_the_digest_from_the_chunk_files_is_the_maps(tmp_path, monkeypatch):
     assert source == "chunk files" and digest == _both_ways(appender.job.tmp)
     with h5py.File(appender.job.tmp) as f:
         assert len(f["edges/index/edges"]) > 5 * 37 and f["edges/duration"].shape == (125,)
+
+
+def test_a_map_without_valid_edges_is_written_with_its_digest(tmp_path):
+    """No chunk with a valid edge: the map's index is empty (no HDF5 chunk to write), and its
+    digest is still `content_digest`'s."""
+    appender = _written(tmp_path, edges=(0, 0, 0, 0))
+    digest, source = appender.digest()
+    assert source == "chunk files" and digest == _both_ways(appender.job.tmp)
+    with h5py.File(appender.job.tmp) as f:
+        assert f["edges/index/edges"].shape == (0,) and f["edges/duration"].shape == (0,)
+        assert not f["edges/index/offset"][()].any()
 
 
 @pytest.mark.parametrize("broken", ["schema", "missing chunk", "other rows", "definition"])

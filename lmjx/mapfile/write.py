@@ -336,6 +336,10 @@ def write_rows(ds: h5py.Dataset, parts: Iterable[np.ndarray], threads: int) -> N
     the spatial index of a 5,000,000-edge map (128 M edge ids) took about 10 s so."""
     from concurrent.futures import ThreadPoolExecutor
 
+    if ds.chunks is None:  # an empty dataset, stored whole (`write_index`): no rows to write
+        if any(len(part) for part in parts):
+            raise ValueError(f"{ds.name}: rows given for a dataset of {len(ds)}")
+        return
     col = _Column(ds, ds.chunks[0], grow=False)
     jobs: collections.deque = collections.deque()
     with ThreadPoolExecutor(threads, thread_name_prefix="lmjx-write") as pool:
@@ -424,6 +428,9 @@ def write_index(g: h5py.Group, grid: IndexGrid, offset: np.ndarray, edges: np.nd
         _dataset(idx, "edges", edges, "edge ids")
         return idx["edges"]
     total = int(offset[-1])
+    if total == 0:  # stored as `write_map` stores an empty index (HDF5 chunks no empty dataset of a fixed shape)
+        _dataset(idx, "edges", np.zeros(0, np.int32), "edge ids")
+        return idx["edges"]
     ds = idx.create_dataset(
         "edges",
         shape=(total,),
