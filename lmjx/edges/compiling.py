@@ -43,7 +43,7 @@ from lmjx.model.failure import Failure, parse_failure
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachConfig, reach_ik
 from lmjx.runtime.batching import ChunkedKernel, program_ident
-from lmjx.runtime.cache import cache_dir, jax_cache_key, key_in_jax_cache
+from lmjx.runtime.cache import cache_dir, jax_cache_entry, key_in_jax_cache
 from lmjx.runtime.fileio import write_text_atomic
 
 
@@ -138,24 +138,27 @@ class PresetCompiler:
             self.cached = [f"{spec} {stage}" for spec, stage, _ in self.programs]
             self.seconds = time.perf_counter() - t0
             return
-        keys: list[str | None] = []
+        keys: list[str | None] = []  # each program's cache key
+        compiled: list[str | None] = []  # those of the programs compiled here
         try:
             for spec, stage, kernel in self.programs:
                 if self._stop.is_set():
                     return
                 t0 = time.perf_counter()
                 lowered, _ = kernel.lower(keep=False)  # (compiled here, not by the kernel)
-                keys.append(jax_cache_key(lowered))
-                if keys[-1] is not None and key_in_jax_cache(keys[-1], lowered._lowering.compile_args["backend"]):
+                key, cached = jax_cache_entry(lowered)
+                keys.append(key)
+                if cached:
                     self.cached.append(f"{spec} {stage}")
                 else:
                     lowered.compile()  # into the persistent cache; the executable is dropped
                     self.compiled.append(f"{spec} {stage}")
+                    compiled.append(key)
                 self.seconds += time.perf_counter() - t0
         except Exception as e:  # a later build compiles what is missing
             self.error = f"{type(e).__name__}: {e}"
             return
-        self._write_record(keys)
+        self._write_record(keys, compiled)
 
     def _recorded(self) -> bool:
         """Whether `record` says every program is in the cache, and the cache still holds them."""
@@ -167,10 +170,11 @@ class PresetCompiler:
             return False
         return len(keys) == len(self.programs) and all(key_in_jax_cache(k) for k in keys)
 
-    def _write_record(self, keys: list[str | None]) -> None:
-        """The record of the programs' cache keys, where every one is in the cache now (JAX
-        keeps only programs that took a while to compile: a quicker one is not recorded)."""
-        if self.record is None or None in keys or not all(key_in_jax_cache(k) for k in keys if k is not None):
+    def _write_record(self, keys: list[str | None], compiled: list[str | None]) -> None:
+        """The record of the programs' cache keys, where every one is in the cache now: those
+        found there, and those `compiled` here once JAX kept them (it keeps only programs
+        that took a while to compile: a quicker one is not recorded)."""
+        if self.record is None or None in keys or not all(key_in_jax_cache(k) for k in compiled if k is not None):
             return
         text = json.dumps({"programs": [f"{s} {t}" for s, t, _ in self.programs], "jax_keys": keys})
         with contextlib.suppress(OSError):  # a read-only cache: the next build looks the programs up again

@@ -107,13 +107,18 @@ def in_jax_cache(lowered: Any) -> bool | None:
     """Whether JAX's persistent compilation cache holds the program `lowered` compiled,
     without compiling it: its key (`jax_cache_key`) looked up.  None when it cannot tell;
     callers then compile, which loads a cached program anyway."""
+    return jax_cache_entry(lowered)[1]
+
+
+def jax_cache_entry(lowered: Any) -> tuple[str | None, bool | None]:
+    """(`jax_cache_key` of `lowered`, `in_jax_cache`'s answer): the key computed once."""
     key = jax_cache_key(lowered)
     if key is None:
-        return None
+        return None, None
     try:
-        return key_in_jax_cache(key, lowered._lowering.compile_args["backend"])
+        return key, key_in_jax_cache(key, lowered._lowering.compile_args["backend"])
     except Exception:  # another JAX's internals
-        return None
+        return key, None
 
 
 def key_in_jax_cache(key: str, backend: Any = None) -> bool | None:
