@@ -303,7 +303,7 @@ def write_index_edges(
         hashing: list = []
 
         def ranges_out():
-            for _, out in _index_ranges(folder, ranges, first_edge, offset):
+            for out in _index_ranges(folder, ranges, first_edge, offset):
                 if hash_out is not None:
                     if hashing:
                         hashing.pop().result()  # (one range's ids held for it at a time)
@@ -317,8 +317,8 @@ def write_index_edges(
 
 def _index_ranges(
     folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
-) -> Generator[tuple[int, np.ndarray], None, None]:
-    """(first place, edge ids) of each range of cells with pairs, in order (`write_index_edges`)."""
+) -> Generator[np.ndarray, None, None]:
+    """The edge ids of each range of cells with pairs, in order (`write_index_edges`)."""
     n_cells = len(offset) - 1
     c0 = 0
     while c0 < n_cells:
@@ -338,5 +338,5 @@ def _index_ranges(
             out[fill[c] + rank] = edge[lo:hi] + np.int32(e0)
             fill += count
         if len(out):
-            yield int(offset[c0]), out
+            yield out
         c0 = c1

@@ -19,8 +19,8 @@ host work.
 
 The process is started at the beginning of a build (`WriterProcess`), so that its start
 overlaps the preflight and the reach map, and is handed its job by a thread, so that the
-build's first chunk never waits for it.  It runs in a session of its own, so Ctrl-C reaches
-only the build, which stops it; it ends when the build's process dies (its pipe closes); a
+build's first chunk never waits for it.  It runs in a process group of its own, so Ctrl-C
+reaches only the build, which stops it; it ends when the build's process dies (its pipe closes); a
 rerun deletes the map it was writing.
 """
 
@@ -83,7 +83,7 @@ class WriterProcess:
     """The writing process, started ahead of its job (`MapWriter`), so that its start (a
     clean interpreter importing h5py, numpy and lmjx's map code) overlaps the build's reach
     map: a process of its own, whatever the caller's main module is (this lmjx imported from
-    where this one was), in a session of its own (Ctrl-C reaches the build, which stops it),
+    where this one was), in a process group of its own (Ctrl-C reaches the build, which stops it),
     with the CPU as JAX's platform.  It waits for its job on its pipe, and ends when the pipe
     closes: `stop` ends one never given a job (a build that stopped before its edges)."""
 

@@ -71,9 +71,8 @@ def content_digest(path: str | Path, each: dict[str, str] | None = None, paralle
         for name in names:
             ds = f[name]
             h.update(_head(name, ds.dtype, ds.shape))
-            rows = [ds[()]] if not ds.shape else _blocks(ds, parallel)
             one = hashlib.sha256()
-            for block in rows:
+            for block in _blocks(ds, parallel):
                 b = _bytes(np.asarray(block))
                 h.update(b)
                 one.update(b)
@@ -83,9 +82,12 @@ def content_digest(path: str | Path, each: dict[str, str] | None = None, paralle
 
 
 def _blocks(ds: h5py.Dataset, parallel: bool):
-    """`ds`'s rows, ROWS at a time, in order."""
+    """`ds`'s rows, ROWS at a time, in order (a scalar dataset: its value)."""
     from lmjx.mapfile.lazystates import StateReader
 
+    if not ds.shape:
+        yield ds[()]
+        return
     reader = StateReader(ds) if parallel else None
     if reader is None or not reader.fast:  # (not stored as lmjx stores states: through h5py)
         yield from (ds[i : i + ROWS] for i in range(0, ds.shape[0], ROWS))
@@ -178,7 +180,7 @@ class RunningDigest:
                     return None  # (checked before its bytes: the rows add up to the dataset's)
                 h.update(_head(name, ds.dtype, ds.shape))
                 if g is None:
-                    for block in [ds[()]] if not ds.shape else _blocks(ds, parallel):
+                    for block in _blocks(ds, parallel):
                         h.update(_bytes(np.asarray(block)))
                     continue
                 nbytes, blocks = 0, g.blocks()
