@@ -180,8 +180,11 @@ def build_map(
     kept = bool(s.get("kept"))
     result = MapBuild(path, robot, failure, seed, dict(s), built=not kept)
     if jax.process_index() == 0:
-        with load_map(path, robot, lazy=True) as m:
-            assert m.reach is not None and m.edges is not None
+        # the reach map's figures (and a kept map's edge figures) from the file; a map just
+        # built has its edges' figures in `s`, and its edges are not read again (a 5,000,000-edge
+        # map's index alone is 128 M edge ids)
+        with load_map(path, robot, lazy=True, with_edges=kept) as m:
+            assert m.reach is not None and (m.edges is not None or not kept)
             rs = m.reach.summary()
             result.reach = {k: rs[k] for k in ("cell_m", "area_m2", "area_raw_m2", "seconds", "compile_seconds")}
             if kept:  # the figures of the build that wrote it

@@ -74,6 +74,12 @@ def test_load_map_with_edges(small_map):
     assert m.edges.config.seed == 1 and m.edges.sampled == 3000
     e = m.edges.edge(0)
     assert e["q"].shape[1] == 7 and len(e["q"]) == m.edges.length[0]
+    # the reach map alone (what `build_map` reads back after a build): the same reach map,
+    # and none of the edges' group
+    r = load_map(small_map, with_edges=False)
+    assert r.edges is None and r.edges_attrs == {}
+    assert r.reach.summary() == m.reach.summary()
+    np.testing.assert_array_equal(r.reach.labels, m.reach.labels)
 
 
 def test_damaged_edge_file_is_refused(small_map, tmp_path):

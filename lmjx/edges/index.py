@@ -478,7 +478,10 @@ def index_devices() -> list[jax.Device | None]:
     return [None, *devices[1:]]
 
 
-def _next_device() -> jax.Device | None:
+def next_device() -> jax.Device | None:
+    """The next of `index_devices()`, in turn (thread-safe): where the build's packers place
+    their device work (the index, the push samples), so that it does not all queue behind
+    the first device's rollouts."""
     devices = index_devices()
     with _INDEXES_LOCK:
         i = _TURN["next"] % len(devices)
@@ -512,7 +515,7 @@ def arm_index_pairs(
     `height`) is sampled every half cell; a cell counts when a sample lies within the
     capsule's radius of its square.  Computed on the local devices in turn (`ArmIndex`)."""
     grid = Grid.of(reach)
-    index = arm_index(robot, grid.nx, grid.ny, grid.cell, _next_device())
+    index = arm_index(robot, grid.nx, grid.ny, grid.cell, next_device())
     return index.pairs(grid, q, length, height)
 
 

@@ -115,7 +115,11 @@ def robot_for_file(path: Path, attrs: dict, robot: Robot | None) -> Robot:
 
 
 def load_map(
-    path: str | Path, robot: Robot | str | Path | None = None, check_robot: bool = True, lazy: bool | None = None
+    path: str | Path,
+    robot: Robot | str | Path | None = None,
+    check_robot: bool = True,
+    lazy: bool | None = None,
+    with_edges: bool = True,
 ) -> MapFile:
     """Open and validate a map file; raise MapFileError (one line) when it is unusable.
     `robot` (a Robot, a name or an MJCF's path): the robot to read it with, which must be
@@ -130,7 +134,9 @@ def load_map(
     The reach map, the per-edge arrays and the spatial index are read at once; the edge
     states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which
     stays open (a map larger than memory is usable).  lazy=None: lazy when the states would
-    take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions."""
+    take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions.
+    `with_edges=False`: the reach map alone (`edges` None; the edges' group, whose spatial
+    index a large map holds in hundreds of MB, is not read)."""
     p = Path(path)
     robot = as_robot(robot) if robot is not None else None
     if not p.exists():
@@ -181,13 +187,13 @@ def load_map(
             failure = Failure(fail_name, locked, robot.nq)
             reach = _read_reach(f["reach"], failure, robot, attrs) if "reach" in f else None
             edges = None
-            if "edges" in f:
+            if "edges" in f and with_edges:
                 g = f["edges"]
                 states_bytes = sum(g[k].size * g[k].dtype.itemsize for k in ("q", "qd", "p"))
                 lazy = states_bytes > LAZY_BYTES if lazy is None else lazy
                 edges = _read_edges(g, failure, lazy)
                 keep_open = lazy
-            edges_attrs = dict(f["edges"].attrs) if "edges" in f else {}
+            edges_attrs = dict(f["edges"].attrs) if "edges" in f and with_edges else {}
             if keep_open:  # the with block must not close it: reopen the handle it holds
                 f = h5open(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
                 g = f["edges"]

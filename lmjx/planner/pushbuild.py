@@ -14,6 +14,7 @@ the map's per-edge arrays), so neither the states nor the index are read again.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ import h5py
 import numpy as np
 
 from lmjx.edges.bundle import Bundle, BundleConfig
+from lmjx.edges.index import next_device
 from lmjx.mapfile.schema import config_from_attrs
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
@@ -108,7 +110,12 @@ class BuildPushCounts:
         build's packers call it side by side, one thread each)."""
         t0 = time.perf_counter()
         states = ChunkStates.of(length, q)
-        samples = push_samples(self.robot, states, self.reach, HEIGHT, workers=workers)  # type: ignore[arg-type]
+        # the device part of the samples on the local devices in turn, as the index's
+        device = next_device()
+        import jax
+
+        with contextlib.nullcontext() if device is None else jax.default_device(device):
+            samples = push_samples(self.robot, states, self.reach, HEIGHT, workers=workers)  # type: ignore[arg-type]
         cuts = self._fixed_cuts()
         counts = np.zeros_like(self.counts)
         for i, ((_, _, sc), field, cut) in enumerate(zip(self.scenarios, self.fields, cuts, strict=True)):
