@@ -312,7 +312,8 @@ def test_the_map_writing_process_reports_why_it_stopped(robot, small_map, tmp_pa
 def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkeypatch):
     """`mapappend.write_index_edges` places every chunk's (cell, edge) pairs without sorting: against
     a stable sort of all pairs by (cell, edge), over several cell ranges (a small
-    INDEX_PAIRS) and chunks with cells absent, on random sorted unique pairs."""
+    INDEX_PAIRS), each placed in parts on several threads (a small PLACE_PAIRS), and chunks
+    with cells absent, on random sorted unique pairs."""
     from lmjx.edges import mapappend
     from lmjx.edges.chunk import EdgeChunk
 
@@ -337,7 +338,8 @@ def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkey
     want = edge[np.lexsort((edge, cell))]
     offset = np.zeros(n_cells + 1, np.int64)
     offset[1:] = np.cumsum(np.bincount(cell, minlength=n_cells))
-    monkeypatch.setattr(mapappend, "INDEX_PAIRS", 97)
+    monkeypatch.setattr(mapappend, "INDEX_PAIRS", 97)  # read in ranges of cells ...
+    monkeypatch.setattr(mapappend, "PLACE_PAIRS", 29)  # ... each placed in parts on the threads
     with h5py.File(tmp_path / "index.h5", "w") as f:  # stored as a map's index (chunks of 64 here), read by HDF5
         ds = f.create_dataset("edges", (len(want),), np.int32, chunks=(64,), compression="gzip", shuffle=True,
                               fletcher32=True)  # fmt: skip

@@ -42,7 +42,8 @@ from lmjx.mapfile.schema import PER_EDGE, PER_STATE
 from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index, write_rows
 from lmjx.runtime import threadprof
 
-INDEX_PAIRS = 64 * 2**20  # spatial-index pairs placed at a time when assembling (256 MB of edge ids)
+INDEX_PAIRS = 32 * 2**20  # spatial-index pairs read from the chunk files at a time when assembling (256 MB)
+PLACE_PAIRS = 4 * 2**20  # ... and placed at a time, on a thread of their own (16 MB of edge ids)
 READ_AHEAD = 4  # chunk files the writing process reads ahead
 
 
@@ -296,14 +297,17 @@ def write_index_edges(
     range at most INDEX_PAIRS pairs, read from every saved chunk).  Each chunk's pairs are
     sorted by (cell, edge) and the chunks come in edge order, so every pair's place is
     known without sorting: its cell's start (`offset`), plus the pairs earlier chunks put
-    there, plus its rank among its chunk's pairs of that cell.  Compressed and written on
-    `threads` threads (`write_rows`); `hash_out`: given each range's ids in order, on a
-    thread of its own meanwhile."""
-    with ThreadPoolExecutor(1, thread_name_prefix="lmjx-digest") as hasher:
+    there, plus its rank among its chunk's pairs of that cell.  The chunks of a range are
+    read and placed on `threads` threads (file reads, checksums and numpy's gathers and
+    scatters leave the interpreter lock: one thread placed a 5,000,000-edge map's 128 M ids
+    in about 3.4 s of the build's end), compressed and written on as many (`write_rows`);
+    `hash_out`: given each range's ids in order, on a thread of its own meanwhile."""
+    with ThreadPoolExecutor(1, thread_name_prefix="lmjx-digest") as hasher, \
+            ThreadPoolExecutor(threads, thread_name_prefix="lmjx-index") as pool:  # fmt: skip
         hashing: list = []
 
         def ranges_out():
-            for out in _index_ranges(folder, ranges, first_edge, offset):
+            for out in _index_ranges(folder, ranges, first_edge, offset, pool):
                 if hash_out is not None:
                     if hashing:
                         hashing.pop().result()  # (one range's ids held for it at a time)
@@ -316,27 +320,57 @@ def write_index_edges(
 
 
 def _index_ranges(
-    folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray
+    folder: Path, ranges: list[tuple[int, int]], first_edge: list[int], offset: np.ndarray, pool: ThreadPoolExecutor
 ) -> Generator[np.ndarray, None, None]:
-    """The edge ids of each range of cells with pairs, in order (`write_index_edges`)."""
+    """The edge ids of each range of cells with pairs, in order (`write_index_edges`): the
+    chunks' pairs of a range read once, on `pool`, then placed on `pool` in parts of at most
+    PLACE_PAIRS pairs (a part's ids stay in the processor's caches while they are scattered)."""
     n_cells = len(offset) - 1
-    c0 = 0
-    while c0 < n_cells:
-        c1 = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + INDEX_PAIRS, side="right")) - 1)
-        c1 = min(c1, n_cells)
-        out = np.empty(int(offset[c1] - offset[c0]), np.int32)
-        fill = (offset[c0:c1] - offset[c0]).astype(np.int64)  # each cell's next free place in `out`
-        for (a, b), e0 in zip(ranges, first_edge, strict=True):
-            pairs, _ = chunkfile.read(folder, a, b, ("index_cell", "index_edge"))
-            cell, edge = pairs["index_cell"], pairs["index_edge"]
-            lo, hi = np.searchsorted(cell, [c0, c1])
-            if hi == lo:
-                continue
-            c = cell[lo:hi].astype(np.int64) - c0
-            count = np.bincount(c, minlength=c1 - c0)
-            rank = np.arange(hi - lo) - (np.cumsum(count) - count)[c]
-            out[fill[c] + rank] = edge[lo:hi] + np.int32(e0)
-            fill += count
-        if len(out):
-            yield out
-        c0 = c1
+    for c0, c1 in _cell_ranges(offset, 0, n_cells, INDEX_PAIRS):
+        pieces = [p for p in pool.map(partial(_range_piece, folder, c0, c1), ranges, first_edge) if p is not None]
+        parts = _cell_ranges(offset, c0, c1, PLACE_PAIRS)
+        for out in pool.map(partial(_place, offset, c0, pieces), parts):
+            if len(out):
+                yield out
+
+
+def _cell_ranges(offset: np.ndarray, c0: int, c1: int, pairs: int) -> list[tuple[int, int]]:
+    """Cells [c0, c1) cut into consecutive ranges of at most `pairs` pairs (or one cell of more)."""
+    out = []
+    while c0 < c1:
+        c = max(c0 + 1, int(np.searchsorted(offset, offset[c0] + pairs, side="right")) - 1)
+        out.append((c0, min(c, c1)))
+        c0 = out[-1][1]
+    return out
+
+
+def _range_piece(folder: Path, c0: int, c1: int, rng: tuple[int, int], e0: int) -> tuple | None:
+    """A chunk's pairs with cells in [c0, c1): (cells - c0, edge ids in the map), sorted by
+    cell as the chunk's pairs are; None where it has none."""
+    pairs, _ = chunkfile.read(folder, rng[0], rng[1], ("index_cell", "index_edge"))
+    cell, edge = pairs["index_cell"], pairs["index_edge"]
+    lo, hi = np.searchsorted(cell, [c0, c1])
+    if hi == lo:
+        return None
+    return cell[lo:hi] - np.int32(c0), edge[lo:hi] + np.int32(e0)
+
+
+def _place(offset: np.ndarray, c0: int, pieces: list[tuple], part: tuple[int, int]) -> np.ndarray:
+    """The edge ids of cells `part` (within the range from `c0` whose chunks' `pieces` are
+    given, in edge order): each pair at its cell's start, plus the pairs earlier chunks put
+    there, plus its rank among its chunk's pairs of that cell."""
+    a, b = part[0] - c0, part[1] - c0
+    out = np.empty(int(offset[part[1]] - offset[part[0]]), np.int32)
+    fill = (offset[part[0] : part[1]] - offset[part[0]]).astype(np.int64)  # each cell's next free place in `out`
+    cells = np.arange(b - a + 1, dtype=np.int32)
+    for c, edges in pieces:
+        lo, hi = np.searchsorted(c, [a, b])
+        if hi == lo:
+            continue
+        cc = c[lo:hi] - np.int32(a)
+        bounds = np.searchsorted(cc, cells)  # where each cell's pairs begin among the chunk's
+        out[fill[cc] + (np.arange(hi - lo) - bounds[cc])] = edges[lo:hi]
+        fill += np.diff(bounds)
+    if not np.array_equal(fill, offset[part[0] + 1 : part[1] + 1] - offset[part[0]]):
+        raise RuntimeError(f"the chunk files hold other index pairs than those counted (cells {part[0]}-{part[1]})")
+    return out
