@@ -5,8 +5,9 @@ and measured per-stage rates (`RATES`), one table per platform.
 The estimate is a sum of stages, as the build runs them on the CPU: starting the process,
 the reach map, the edges' IK, their rollouts, the spatial index, the push counts, writing,
 and compiling (less for programs JAX's persistent cache already holds: they are loaded).
-On a GPU the edges' IK, rollouts and index scale with the devices (each device runs whole
-chunks); on a CPU the kernels' stages scale with the cores from the measuring machine's.
+On GPUs the edges' IK, rollouts and index gain what measured builds gained from each
+device beyond the first (`device_gain`: nothing yet, as the host's packing sets the pace); on
+a CPU the kernels' stages scale with the cores from the measuring machine's.
 Nothing here computes or compiles anything.
 """
 
@@ -47,6 +48,10 @@ class StageRates:
     # chunk threads then run side by side (a CPU's kernels leave cores idle that the other
     # thread's take)
     overlap: float
+    # what each device beyond the first adds to the rate of the edges' stages (IK, rollouts,
+    # index): 1.0 where they scale with the devices; on GPUs the host's packing of the
+    # computed edges sets the pace (2 x H200: 5,000,000 edges as fast on two as on one)
+    device_gain: float
     # compiling, per stage (the reach map's, the edges', the index's, the push counts'): the
     # wall time it adds to a build when compiled here (the edges' and the index's compile
     # beside the reach map, and slow it), and when loaded from JAX's persistent cache
@@ -60,13 +65,13 @@ class StageRates:
 # compile in the packer beside the rollouts); cores shared with other work slow every stage
 # (at a load average of 8-15, 3-5x).
 # gpu: one H200 with 16 host cores, `lmjx build-map --json` of 100,000, 1,000,000 and
-# 5,000,000 case-2 edges with the programs cached (wall 5.5-5.6 s, 11.7 s, 38.5 s: 6.7 s per
+# 5,000,000 case-2 edges with the programs cached (wall 5.0-5.3 s, 10.0 s, 28.7 s: 4.7 s per
 # million edges beyond 5 s) and a cold 100,000-edge build (compile_s: the edges' include the
 # other presets' programs compiled ahead for later builds, which the build waits for).  The
-# IK and rollouts at the builds' own rates (18 M edge-steps/s); the index, the push counts
-# and the packing and writing are done by the packers beside the rollouts, and count here
-# by what they add to the wall (10 M, 40 M and 40 M states/s); 2.1 s of cache loads, 2.8 s of
-# start-up and fixed costs.
+# IK and rollouts at 8 M problems/s and 18 M edge-steps/s, three quarters of that where two
+# chunk threads run side by side; the index, the push counts and the packing and writing are
+# done by the packers beside the rollouts, and count here by what they add to the wall
+# (25 M, 40 M and 40 M states/s); 2.1 s of cache loads, 2.3 s of start-up and fixed costs.
 RATES = {
     "cpu": StageRates(
         where="a 2-core CPU",
@@ -79,20 +84,22 @@ RATES = {
         push_states_per_s=1_200_000.0,
         write_states_per_s=40_000.0,
         overlap=0.68,
+        device_gain=1.0,
         compile_s={"reach": 6.4, "edges": 12.5, "index": 10.2, "push": 9.0},
         cached_s={"reach": 0.7, "edges": 0.65, "index": 0.95, "push": 0.0},
     ),
     "gpu": StageRates(
         where="an H200",
         cores=16,
-        startup_s=2.8,
+        startup_s=2.3,
         reach_problems_per_s=4_000_000.0,
         ik_problems_per_s=8_000_000.0,
         edge_steps_per_s=18_000_000.0,
-        index_states_per_s=10_000_000.0,
+        index_states_per_s=25_000_000.0,
         push_states_per_s=40_000_000.0,
         write_states_per_s=40_000_000.0,
-        overlap=1.0,
+        overlap=0.75,
+        device_gain=0.0,
         compile_s={"reach": 10.0, "edges": 70.0, "index": 7.0, "push": 8.0},
         cached_s={"reach": 0.7, "edges": 0.8, "index": 0.6, "push": 0.0},
     ),
@@ -174,7 +181,7 @@ def stage_seconds(work: Work, platform: str, devices: int, cores: int, cached: d
     gpu = platform != "cpu"
     r = RATES["gpu" if gpu else "cpu"]
     kernels = cores / r.cores if not gpu else 1.0  # the CPU's kernels use all its cores
-    per_device = devices * kernels if gpu else kernels
+    per_device = (1 + (devices - 1) * r.device_gain) * kernels if gpu else kernels
     side_by_side = r.overlap if work.chunks > 1 else 1.0
     return {
         "startup": r.startup_s,
