@@ -6,6 +6,8 @@ are in the run's cache (the `tiny_map` fixture compiled them), so nothing new co
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from conftest import TINY_MAP
 
@@ -53,7 +55,7 @@ def test_build_row_arithmetic():
     assert parse_sections("build") == {"build"}
 
 
-def test_the_preflight_sums_per_stage_rates():
+def test_the_preflight_sums_per_stage_rates(monkeypatch):
     work = Work.of(1000, cells=3000, attempts=10, restarts=8, ik_restarts=8, steps=100)
     cpu = RATES["cpu"]
     cold = stage_seconds(work, "cpu", 1, cpu.cores, {})
@@ -71,5 +73,9 @@ def test_the_preflight_sums_per_stage_rates():
     side = stage_seconds(many, "cpu", 1, cpu.cores, {})
     assert side["rollout"] == pytest.approx(cpu.overlap * many.edge_steps / cpu.edge_steps_per_s)
     one, two = (stage_seconds(work, "gpu", d, 16, {}) for d in (1, 2))
-    gain = RATES["gpu"].device_gain
-    assert two["rollout"] == pytest.approx(one["rollout"] / (1 + gain)) and two["reach"] == one["reach"]
+    assert two["rollout"] == pytest.approx(one["rollout"] / (1 + RATES["gpu"].device_gain))
+    assert two["reach"] == one["reach"]
+    half = dataclasses.replace(RATES["gpu"], device_gain=0.5)  # a second device adding half a device's rate
+    monkeypatch.setitem(RATES, "gpu", half)
+    one, three = (stage_seconds(work, "gpu", d, 16, {}) for d in (1, 3))
+    assert three["rollout"] == pytest.approx(one["rollout"] / 2) and three["index"] == pytest.approx(one["index"] / 2)

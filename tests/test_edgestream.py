@@ -321,10 +321,14 @@ def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkey
     n_cells, ranges, first, cells, edges = 50, [], [], [], []
     e0 = 0
     for k in range(5):
-        n_edges = int(rng.integers(1, 40))
+        n_edges = max(int(rng.integers(1, 40)), 35 if k == 4 else 1)
         pairs = np.unique(rng.integers(0, [n_cells, n_edges], size=(int(rng.integers(0, 300)), 2)), axis=0)
         if k == 2:
             pairs = pairs[pairs[:, 0] % 3 != 0]  # cells this chunk never reaches
+        if k == 3:
+            pairs = pairs[:0]  # a chunk without pairs
+        if k == 4:  # a cell of more pairs than a part (PLACE_PAIRS below)
+            pairs = np.unique(np.concatenate([pairs, np.stack([np.full(n_edges, 7), np.arange(n_edges)], 1)]), axis=0)
         arrays = {name: np.zeros(0, np.int32) for name in EdgeChunk.ARRAYS}
         arrays |= {"index_cell": pairs[:, 0].astype(np.int32), "index_edge": pairs[:, 1].astype(np.int32)}
         chunkfile.save(tmp_path, EdgeChunk(start=100 * k, stop=100 * k + 100, rolled_out=0, states_evaluated=0,
@@ -338,13 +342,23 @@ def test_the_index_is_assembled_from_the_chunks_as_a_sort_would(tmp_path, monkey
     want = edge[np.lexsort((edge, cell))]
     offset = np.zeros(n_cells + 1, np.int64)
     offset[1:] = np.cumsum(np.bincount(cell, minlength=n_cells))
+    assert np.bincount(cell)[7] > 29 and len(cells[3]) == 0
     monkeypatch.setattr(mapappend, "INDEX_PAIRS", 97)  # read in ranges of cells ...
-    monkeypatch.setattr(mapappend, "PLACE_PAIRS", 29)  # ... each placed in parts on the threads
-    with h5py.File(tmp_path / "index.h5", "w") as f:  # stored as a map's index (chunks of 64 here), read by HDF5
-        ds = f.create_dataset("edges", (len(want),), np.int32, chunks=(64,), compression="gzip", shuffle=True,
-                              fletcher32=True)  # fmt: skip
-        mapappend.write_index_edges(ds, tmp_path, ranges, first, offset, threads=3)
-        assert len(want) % 64 and np.array_equal(ds[...], want)
+    for place in (29, 3):  # ... each placed in parts on the threads
+        monkeypatch.setattr(mapappend, "PLACE_PAIRS", place)
+        with h5py.File(tmp_path / "index.h5", "w") as f:  # stored as a map's index (chunks of 64 here), read by HDF5
+            ds = f.create_dataset("edges", (len(want),), np.int32, chunks=(64,), compression="gzip", shuffle=True,
+                                  fletcher32=True)  # fmt: skip
+            mapappend.write_index_edges(ds, tmp_path, ranges, first, offset, threads=3)
+            assert len(want) % 64 and np.array_equal(ds[...], want)
+    # counts that are not the chunks' pairs (one pair too few, or too many, in a cell) are refused
+    for change in (1, -1):
+        wrong = offset.copy()
+        wrong[8:] += change
+        with h5py.File(tmp_path / "wrong.h5", "w") as f:
+            ds = f.create_dataset("edges", (int(wrong[-1]),), np.int32, chunks=(64,))
+            with pytest.raises(RuntimeError, match="other index pairs than those counted"):
+                mapappend.write_index_edges(ds, tmp_path, ranges, first, wrong, threads=3)
 
 
 def test_the_writing_process_starts_light_and_ends_unused():

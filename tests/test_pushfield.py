@@ -8,7 +8,10 @@ has them computed and cached."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
+import subprocess
+import sys
 
 import h5py
 import mujoco
@@ -229,3 +232,46 @@ def test_the_planner_reads_stored_counts_and_computes_those_a_map_lacks(robot, p
     _score_field(robot, other.failure, other.reach, other.edges, sc, cfg)
     # (between: warm_push_counts' scenario 3 on the old map, and its --compute)
     assert computed == [sc, scenario(3, robot.profile.task_scale, "hard"), sc, sc]
+
+
+def test_push_samples_run_on_the_device_asked_for(plan_map):
+    """`push_samples(device=...)` (a build's packers spread them over the GPUs): its runs'
+    program runs on that device from the worker threads (JAX's default device is a setting
+    of the thread that enters it), with the samples it gives on the default device.  In a
+    process of two host devices."""
+    code = r"""
+import sys
+import jax
+import numpy as np
+from lmjx.mapfile.read import load_map
+from lmjx.planner import pushsamples
+from lmjx.planner.pushfield import HEIGHT
+
+m = load_map(sys.argv[1], lazy=False)
+seen = []
+real = pushsamples._split
+
+
+def spy(program, *args):
+    def placed(*a):
+        out = program(*a)
+        seen.append(tuple(sorted(d.id for d in out[0].devices())))
+        return out
+
+    return real(placed, *args)
+
+
+pushsamples._split = spy
+one = pushsamples.push_samples(m.robot, m.edges, m.reach, HEIGHT, workers=2)
+first = set(seen)
+seen.clear()
+two = pushsamples.push_samples(m.robot, m.edges, m.reach, HEIGHT, workers=2, device=jax.devices()[1])
+assert first == {(0,)} and set(seen) == {(1,)}, (first, set(seen))
+names = ("k", "p", "p_next", "group_start", "group_edge", "group_cell")
+assert len(one) > 0 and all(np.array_equal(getattr(one, k), getattr(two, k)) for k in names)
+print("ok")
+"""
+    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    r = subprocess.run([sys.executable, "-c", code, str(plan_map)], env=env, capture_output=True, text=True,
+                       timeout=600)  # fmt: skip
+    assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr[-2000:]

@@ -457,7 +457,7 @@ class _Run:
 
 _INDEXES: dict[tuple, ArmIndex] = {}
 _INDEXES_LOCK = threading.Lock()
-_TURN = {"next": 0}  # round robin over the local devices
+_TURN: dict[str, int] = {}  # round robin over the local devices, a turn per kind of work
 
 
 def arm_index(robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | None = None) -> ArmIndex:
@@ -478,15 +478,17 @@ def index_devices() -> list[jax.Device | None]:
     return [None, *devices[1:]]
 
 
-def next_device() -> jax.Device | None:
-    """The next of `index_devices()`, in turn (thread-safe): where the build's packers place
-    their device work (the index, the push samples), so that it does not all queue behind
-    the first device's rollouts."""
+def next_device(kind: str = "index") -> jax.Device | None:
+    """The next of `index_devices()` for work of `kind`, in turn (thread-safe): where the
+    build's packers place their device work (the index, the push samples), so that it does
+    not all queue behind the first device's rollouts.  Each kind has a turn of its own (a
+    packer asks for the index's, then the push samples': one shared turn gave the index the
+    first device every time)."""
     devices = index_devices()
     with _INDEXES_LOCK:
-        i = _TURN["next"] % len(devices)
-        _TURN["next"] += 1
-    return devices[i]
+        i = _TURN.get(kind, 0)
+        _TURN[kind] = i + 1
+    return devices[i % len(devices)]
 
 
 def warm_index(robot: Robot, nx: int, ny: int, cell: float) -> None:

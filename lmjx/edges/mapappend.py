@@ -42,7 +42,7 @@ from lmjx.mapfile.schema import PER_EDGE, PER_STATE
 from lmjx.mapfile.write import EdgeWriter, IndexGrid, write_index, write_rows
 from lmjx.runtime import threadprof
 
-INDEX_PAIRS = 32 * 2**20  # spatial-index pairs read from the chunk files at a time when assembling (256 MB)
+INDEX_PAIRS = 64 * 2**20  # spatial-index pairs read from the chunk files at a time when assembling (512 MB)
 PLACE_PAIRS = 4 * 2**20  # ... and placed at a time, on a thread of their own (16 MB of edge ids)
 READ_AHEAD = 4  # chunk files the writing process reads ahead
 
@@ -325,6 +325,8 @@ def _index_ranges(
     """The edge ids of each range of cells with pairs, in order (`write_index_edges`): the
     chunks' pairs of a range read once, on `pool`, then placed on `pool` in parts of at most
     PLACE_PAIRS pairs (a part's ids stay in the processor's caches while they are scattered)."""
+    if len(ranges) != len(first_edge):
+        raise ValueError(f"{len(ranges)} chunks but {len(first_edge)} first edges")
     n_cells = len(offset) - 1
     for c0, c1 in _cell_ranges(offset, 0, n_cells, INDEX_PAIRS):
         pieces = [p for p in pool.map(partial(_range_piece, folder, c0, c1), ranges, first_edge) if p is not None]
@@ -332,6 +334,7 @@ def _index_ranges(
         for out in pool.map(partial(_place, offset, c0, pieces), parts):
             if len(out):
                 yield out
+        del pieces  # (before the next range's are read)
 
 
 def _cell_ranges(offset: np.ndarray, c0: int, c1: int, pairs: int) -> list[tuple[int, int]]:
@@ -344,7 +347,7 @@ def _cell_ranges(offset: np.ndarray, c0: int, c1: int, pairs: int) -> list[tuple
     return out
 
 
-def _range_piece(folder: Path, c0: int, c1: int, rng: tuple[int, int], e0: int) -> tuple | None:
+def _range_piece(folder: Path, c0: int, c1: int, rng: tuple[int, int], e0: int) -> tuple[np.ndarray, np.ndarray] | None:
     """A chunk's pairs with cells in [c0, c1): (cells - c0, edge ids in the map), sorted by
     cell as the chunk's pairs are; None where it has none."""
     pairs, _ = chunkfile.read(folder, rng[0], rng[1], ("index_cell", "index_edge"))
@@ -362,6 +365,7 @@ def _place(offset: np.ndarray, c0: int, pieces: list[tuple], part: tuple[int, in
     a, b = part[0] - c0, part[1] - c0
     out = np.empty(int(offset[part[1]] - offset[part[0]]), np.int32)
     fill = (offset[part[0] : part[1]] - offset[part[0]]).astype(np.int64)  # each cell's next free place in `out`
+    ends = offset[part[0] + 1 : part[1] + 1] - offset[part[0]]  # ... and where it ends
     cells = np.arange(b - a + 1, dtype=np.int32)
     for c, edges in pieces:
         lo, hi = np.searchsorted(c, [a, b])
@@ -369,8 +373,12 @@ def _place(offset: np.ndarray, c0: int, pieces: list[tuple], part: tuple[int, in
             continue
         cc = c[lo:hi] - np.int32(a)
         bounds = np.searchsorted(cc, cells)  # where each cell's pairs begin among the chunk's
+        count = np.diff(bounds)
+        if np.any(fill + count > ends):
+            break  # (more pairs than counted: refused below)
         out[fill[cc] + (np.arange(hi - lo) - bounds[cc])] = edges[lo:hi]
-        fill += np.diff(bounds)
-    if not np.array_equal(fill, offset[part[0] + 1 : part[1] + 1] - offset[part[0]]):
-        raise RuntimeError(f"the chunk files hold other index pairs than those counted (cells {part[0]}-{part[1]})")
-    return out
+        fill += count
+    else:
+        if np.array_equal(fill, ends):
+            return out
+    raise RuntimeError(f"the chunk files hold other index pairs than those counted (cells {part[0]}-{part[1]})")

@@ -135,8 +135,9 @@ def load_map(
     states (q, qd, p) too unless `lazy`: then they are read on demand from the file, which
     stays open (a map larger than memory is usable).  lazy=None: lazy when the states would
     take more than `LAZY_BYTES`.  Either way the map gives the same edges and decisions.
-    `with_edges=False`: the reach map alone (`edges` None; the edges' group, whose spatial
-    index a large map holds in hundreds of MB, is not read)."""
+    `with_edges=False`: the reach map alone (the edges' group, whose spatial index a large
+    map holds in hundreds of MB, is not read: `edges` is None and `edges_attrs` empty even
+    where the file holds edges, and `lazy` does not apply)."""
     p = Path(path)
     robot = as_robot(robot) if robot is not None else None
     if not p.exists():

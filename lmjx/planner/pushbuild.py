@@ -14,7 +14,6 @@ the map's per-edge arrays), so neither the states nor the index are read again.
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 from dataclasses import dataclass
@@ -111,11 +110,8 @@ class BuildPushCounts:
         t0 = time.perf_counter()
         states = ChunkStates.of(length, q)
         # the device part of the samples on the local devices in turn, as the index's
-        device = next_device()
-        import jax
-
-        with contextlib.nullcontext() if device is None else jax.default_device(device):
-            samples = push_samples(self.robot, states, self.reach, HEIGHT, workers=workers)  # type: ignore[arg-type]
+        samples = push_samples(self.robot, states, self.reach, HEIGHT, workers=workers,  # type: ignore[arg-type]
+                               device=next_device("push"))  # fmt: skip
         cuts = self._fixed_cuts()
         counts = np.zeros_like(self.counts)
         for i, ((_, _, sc), field, cut) in enumerate(zip(self.scenarios, self.fields, cuts, strict=True)):

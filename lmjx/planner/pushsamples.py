@@ -136,13 +136,21 @@ def _runs(lengths: np.ndarray, rows: int) -> list[tuple[int, int]]:
 
 
 def push_samples(
-    robot: Robot, bundle: Bundle, reach: ReachResult, height: float, progress: bool = False, workers: int | None = None
+    robot: Robot,
+    bundle: Bundle,
+    reach: ReachResult,
+    height: float,
+    progress: bool = False,
+    workers: int | None = None,
+    device=None,
 ) -> PushSamples:
     """The push samples (module docstring) of the bundle's edges that keep at least
     MIN_EDGE_STATES states, over the reach map's cells.  Runs of edges go through the device
     and the host's tests on `workers` threads (default `threads()`; each reads its run,
     launches it and takes its samples: numpy, the reads and JAX's calls leave the
-    interpreter lock).  `progress`: a bar on stderr, per edge."""
+    interpreter lock).  `progress`: a bar on stderr, per edge.  `device`: the JAX device the
+    runs' program runs on (None: JAX's default), set in each worker thread (JAX's default
+    device is a setting of the thread that enters it)."""
     lengths = np.asarray(bundle.length, np.int64)
     rows = max(_rows(), int(lengths.max(initial=1)))
     run = _Run(robot, bundle, reach, height, rows)
@@ -150,7 +158,16 @@ def push_samples(
     runs = _runs(lengths, rows) if run.nt and len(lengths) else []
     parts = []
     with ThreadPoolExecutor(workers or threads(), thread_name_prefix="lmjx-push") as pool:
-        for part, (e0, e1) in zip(pool.map(lambda r: run(*r), runs), runs, strict=True):
+
+        def call(r: tuple[int, int]) -> tuple:
+            if device is None:
+                return run(*r)
+            import jax
+
+            with jax.default_device(device):
+                return run(*r)
+
+        for part, (e0, e1) in zip(pool.map(call, runs), runs, strict=True):
             parts.append(part)
             bar.update(e1 - e0)
     bar.close()
