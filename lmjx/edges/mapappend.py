@@ -367,6 +367,7 @@ def _place(offset: np.ndarray, c0: int, pieces: list[tuple], part: tuple[int, in
     fill = (offset[part[0] : part[1]] - offset[part[0]]).astype(np.int64)  # each cell's next free place in `out`
     ends = offset[part[0] + 1 : part[1] + 1] - offset[part[0]]  # ... and where it ends
     cells = np.arange(b - a + 1, dtype=np.int32)
+    miscounted = f"the chunk files hold other index pairs than those counted (cells {part[0]}-{part[1]})"
     for c, edges in pieces:
         lo, hi = np.searchsorted(c, [a, b])
         if hi == lo:
@@ -374,11 +375,10 @@ def _place(offset: np.ndarray, c0: int, pieces: list[tuple], part: tuple[int, in
         cc = c[lo:hi] - np.int32(a)
         bounds = np.searchsorted(cc, cells)  # where each cell's pairs begin among the chunk's
         count = np.diff(bounds)
-        if np.any(fill + count > ends):
-            break  # (more pairs than counted: refused below)
+        if np.any(fill + count > ends):  # (before they are placed: past their cells' room)
+            raise RuntimeError(miscounted)
         out[fill[cc] + (np.arange(hi - lo) - bounds[cc])] = edges[lo:hi]
         fill += count
-    else:
-        if np.array_equal(fill, ends):
-            return out
-    raise RuntimeError(f"the chunk files hold other index pairs than those counted (cells {part[0]}-{part[1]})")
+    if not np.array_equal(fill, ends):
+        raise RuntimeError(miscounted)
+    return out

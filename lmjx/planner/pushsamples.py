@@ -20,6 +20,7 @@ from __future__ import annotations
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import backend, fetch
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.progress import Progress
+
+if TYPE_CHECKING:
+    import jax
 
 MIN_MOTION = 1e-4  # [m] a capsule end moving less than this from one state to the next pushes nothing
 Z_SLACK = 1e-5  # [m] the device's float32 height test lets through what lies this little above the limit
@@ -142,7 +146,7 @@ def push_samples(
     height: float,
     progress: bool = False,
     workers: int | None = None,
-    device=None,
+    device: jax.Device | None = None,
 ) -> PushSamples:
     """The push samples (module docstring) of the bundle's edges that keep at least
     MIN_EDGE_STATES states, over the reach map's cells.  Runs of edges go through the device
@@ -157,16 +161,16 @@ def push_samples(
     bar = Progress(total=len(lengths), desc="push samples", enabled=progress, unit="edge")
     runs = _runs(lengths, rows) if run.nt and len(lengths) else []
     parts = []
+
+    def call(r: tuple[int, int]) -> tuple:
+        if device is None:
+            return run(*r)
+        import jax
+
+        with jax.default_device(device):
+            return run(*r)
+
     with ThreadPoolExecutor(workers or threads(), thread_name_prefix="lmjx-push") as pool:
-
-        def call(r: tuple[int, int]) -> tuple:
-            if device is None:
-                return run(*r)
-            import jax
-
-            with jax.default_device(device):
-                return run(*r)
-
         for part, (e0, e1) in zip(pool.map(call, runs), runs, strict=True):
             parts.append(part)
             bar.update(e1 - e0)
