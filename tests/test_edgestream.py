@@ -381,3 +381,50 @@ def test_the_writing_process_starts_light_and_ends_unused():
     p.stop()
     assert p.proc.returncode is not None
     p.stop()  # (again: nothing)
+
+
+def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(tiny_map, tmp_path):
+    """A build's peer process (`lmjx.edges.peers`: what a build on several GPUs runs each
+    GPU but the first in), given chunks of the test arm's build, saves the units this process
+    packs from the same chunks, array for array, and sends back their push counts summed, as
+    this process sums them; a peer given no chunk is stopped without waiting for it."""
+    import jax
+
+    from lmjx.edges.chunk import chunk_ranges, pack_chunk
+    from lmjx.edges.peers import PeerJob, Peers
+    from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, split_rolled
+    from lmjx.model.robot import load_robot
+    from lmjx.planner.pushbuild import BuildPushCounts
+
+    robot = load_robot(str(TINY_ARM))
+    m = load_map(tiny_map, robot)
+    reach, config = m.reach, m.edges.config
+    half = reach.config.object_height / 2
+    chunks, unit = [(400, 800), (800, 1200)], 300  # (units that cut through chunks)
+    folder = tmp_path / "peer"
+    folder.mkdir()
+    job = PeerJob(str(TINY_ARM), reach.failure, reach, config, half, reach.config.chunk, str(folder), unit, 2, True,
+                  0.005)  # fmt: skip
+    left, saved, errors = list(chunks), [], []
+    with Peers([jax.local_devices()[0]] * 2) as peers:
+        peers.begin(job, lambda i: left.pop(0) if i == 0 and left else None, lambda a, b: saved.append((a, b)),
+                    lambda i, e: errors.append(e))  # fmt: skip
+        results = peers.finish(lambda i: i == 0)  # (peer 0 ends once it is told there is no chunk left)
+    assert errors == [] and len(results) == 1 and results[0]["chunks"] == 2 and results[0]["edges"] == 800
+    units = [u for a, b in chunks for u in chunk_ranges(b, unit, a)]
+    assert sorted(saved) == units
+    # the same chunks here: the same units, the same push counts
+    kernels = EdgeKernels(robot, reach.failure, config, True, half, ik_chunk=reach.config.chunk)
+    push = BuildPushCounts(robot, reach.failure, reach)
+    for a, b in chunks:
+        samples = solve_starts(draw_edges(reach, config, robot, a, b), kernels)
+        idx, rolled = roll_out(samples, kernels)
+        for ua, ub in chunk_ranges(b, unit, a):
+            here = pack_chunk(reach, config, robot, *split_rolled(samples, idx, rolled, ua, ub))
+            push.add(here.length, here.q)
+            there = chunkfile.load(folder, ua, ub)
+            for name in here.ARRAYS:
+                np.testing.assert_array_equal(getattr(there, name), getattr(here, name), err_msg=name)
+    assert results[0]["push"]["edges"] == push.edges > 0
+    np.testing.assert_array_equal(results[0]["push"]["counts"], push.counts)
+    assert push.counts.sum() > 0

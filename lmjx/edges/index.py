@@ -36,6 +36,7 @@ passes and one window; 1,000,000 edges about 390 passes (10 G cell tests) and 16
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import threading
 import time
@@ -469,11 +470,28 @@ def arm_index(robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | 
         return _INDEXES[key]
 
 
+_FIRST_ONLY = [0]  # builds under `first_device_only` (their other devices run in peer processes)
+
+
+@contextlib.contextmanager
+def first_device_only():
+    """Within: `index_devices` is JAX's default device alone (a build whose other devices
+    each run in a peer process of their own: `lmjx.edges.peers`)."""
+    with _INDEXES_LOCK:
+        _FIRST_ONLY[0] += 1
+    try:
+        yield
+    finally:
+        with _INDEXES_LOCK:
+            _FIRST_ONLY[0] -= 1
+
+
 def index_devices() -> list[jax.Device | None]:
     """The devices the map's index runs on, in turn: every local accelerator (None: JAX's
-    default, the first); on a CPU the default device alone (host devices share the cores)."""
+    default, the first); on a CPU, or under `first_device_only`, the default device alone
+    (host devices share the cores)."""
     devices = jax.local_devices()
-    if devices[0].platform == "cpu":
+    if devices[0].platform == "cpu" or _FIRST_ONLY[0]:
         return [None]
     return [None, *devices[1:]]
 

@@ -34,7 +34,7 @@ import subprocess
 import sys
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -154,9 +154,15 @@ class MapWriter:
         self.tmp = folder / f"map-{os.getpid()}.h5.tmp"
         self.pool = ThreadPoolExecutor(self.packers, thread_name_prefix="lmjx-pack")
         most = max((b - a for a, b in todo), default=1)
-        # pack jobs, in order: per device, a chunk's units and 4 more (on 2 H200s, 6 in all
-        # kept the packers from keeping up: benchmarks/RESULTS.md)
-        self.queue: queue.Queue = queue.Queue(maxsize=devices * (-(-most // self.unit) + 4))
+        # units being packed here: per device, a chunk's units and 4 more (on 2 H200s, 6 in
+        # all kept the packers from keeping up: benchmarks/RESULTS.md)
+        self.room = threading.Semaphore(devices * (-(-most // self.unit) + 4))
+        # every claimed unit's slot, in edge order (`claim`): done when the unit is saved,
+        # here (`put`) or by a peer process (`saved`); the feeder hands them over in order
+        self.queue: queue.Queue = queue.Queue()
+        self.slots: dict[int, Future] = {}
+        self.slots_lock = threading.Lock()
+        self.peers = None  # `peers.Peers`, whose failure `_check` raises
         self.error: BaseException | None = None  # what stopped the packers or the feeder
         self.stop = threading.Event()  # the feeder's stop (abort)
         self.threads_report: dict | None = None  # the writing process's LMJX_THREAD_PROFILE report
@@ -193,20 +199,54 @@ class MapWriter:
         self.feeder.start()
         self.parts["start"] = time.perf_counter() - t_start  # the build's wait here, before its first chunk
 
+    def claim(self, a: int, b: int) -> None:
+        """Chunk [a, b) is the next one computed (by this process or a peer): its units'
+        slots join the feeder's order.  Called in edge order, one call at a time."""
+        with self.slots_lock:
+            for ua, _ in chunk_ranges(b, self.unit, a):
+                slot: Future = Future()
+                self.slots[ua] = slot
+                self.queue.put(slot)
+
+    def saved(self, a: int, b: int) -> None:
+        """A peer saved unit [a, b) of a chunk it claimed."""
+        with self.slots_lock:
+            slot = self.slots.pop(a)
+        slot.set_result((a, b))
+
+    def failed(self, error: BaseException, starts: set[int] | None = None) -> None:
+        """The units starting at `starts` (None: every unit not yet saved) will not be:
+        their slots fail with `error`, which stops the feeder and then the build."""
+        with self.slots_lock:
+            lost = [a for a in self.slots if starts is None or a in starts]
+            slots = [self.slots.pop(a) for a in lost]
+        for slot in slots:
+            slot.set_exception(error)
+
     def put(self, samples, idx, rolled) -> None:
-        """Hand over a computed chunk, packed in units of `unit` sampled edges (`unit_edges`)."""
+        """Hand over a computed chunk (`claim`ed before), packed in units of `unit` sampled
+        edges (`unit_edges`)."""
         t0 = time.perf_counter()
         n = len(samples.which)
         for a, b in chunk_ranges(samples.start + n, self.unit, samples.start):
-            job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
-            while True:
+            while not self.room.acquire(timeout=0.5):
                 self._check()
-                try:
-                    self.queue.put(job, timeout=0.5)
-                    break
-                except queue.Full:
-                    continue
+            self._check()
+            with self.slots_lock:
+                slot = self.slots.pop(a)
+            job = self.pool.submit(self._pack, *split_rolled(samples, idx, rolled, a, b))
+            job.add_done_callback(lambda done, slot=slot: self._packed(done, slot))
         self.t_wait += time.perf_counter() - t0
+
+    def _packed(self, done: Future, slot: Future) -> None:
+        """A unit's packing ended (or was cancelled: a build stopping): its slot says so."""
+        self.room.release()
+        if done.cancelled():
+            slot.cancel()
+        elif done.exception() is not None:
+            slot.set_exception(done.exception())  # type: ignore[arg-type]
+        else:
+            slot.set_result(done.result())
 
     def _pack(self, samples, idx, rolled) -> tuple[int, int]:
         t0 = time.perf_counter()
@@ -248,6 +288,8 @@ class MapWriter:
         """Raise what stopped the writing process, the packers or the feeder."""
         if self.proc.poll() is not None:
             raise self._writer_failure()
+        if self.peers is not None:
+            self.peers.check()
         if self.error is not None:
             raise self.error
 

@@ -42,6 +42,7 @@ import json
 import os
 import shutil
 import sys
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -59,8 +60,10 @@ from lmjx.edges.compiling import (
     preset_record,
 )
 from lmjx.edges.existing import build_plan, difference
-from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
+from lmjx.edges.index import capsule_ends_kernel, first_device_only, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter, WriterProcess
+from lmjx.edges.peers import PeerJob, Peers, peer_environment
+from lmjx.edges.peers import enabled as peers_enabled
 from lmjx.edges.preflight import DAY, Preflight, Work, preflight
 from lmjx.edges.preflight import duration_text as _duration
 from lmjx.edges.preflight import size_text as _size
@@ -229,10 +232,18 @@ def _build_map(
     process = stack.enter_context(WriterProcess()) if lead else None
     # One process with several devices: each device runs whole chunks of its own (its own
     # programs, and host threads preparing and collecting its work), so that the host work
-    # scales with the devices too.  Several processes: every launch spread over all devices.
-    split = sharded and jax.process_count() == 1 and len(jax.local_devices()) > 1
+    # scales with the devices too: the first in this process, each other one in a peer
+    # process of its own (`peers`; in this process too where LMJX_PEERS=0).  Several
+    # processes: every launch spread over all devices.
+    local = jax.local_devices()
+    split = sharded and jax.process_count() == 1 and len(local) > 1
     half = reach_cfg.object_height / 2
-    if split:
+    peers: Peers | None = None
+    if split and peers_enabled(local[0].platform) and all(peer_environment(d) is not None for d in local[1:]):
+        peers = stack.enter_context(Peers(local[1:]))
+        kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=local[0], ik_chunk=reach_cfg.chunk)]
+        stack.enter_context(first_device_only())  # this process's index and push work on its device
+    elif split:
         kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=d, ik_chunk=reach_cfg.chunk)
                        for d in jax.local_devices()]  # fmt: skip
     else:
@@ -360,12 +371,28 @@ def _build_map(
     sampler = threadprof.from_environment() if lead else None  # LMJX_THREAD_PROFILE: where threads wait
     pools = [ThreadPoolExecutor(threads, thread_name_prefix="lmjx-chunk") for _ in kernel_sets]
     window: collections.deque[Future] = collections.deque()  # chunks in flight, in edge order
+    peer_results: list[dict] = []
     try:
         writer = MapWriter(folder, reach, config, robot, n, done, todo, len(kernel_sets), process) if lead else None
-        for k, (a, b) in enumerate(todo):
-            i = k % len(kernel_sets)
-            window.append(pools[i].submit(job, kernel_sets[i], a, b))
-            while len(window) >= (threads + ahead) * len(kernel_sets) or (window and k == len(todo) - 1):
+        claims = Claims(todo, writer)
+        if peers is not None:
+            assert writer is not None
+            writer.peers = peers
+            peers.begin(
+                PeerJob(str(robot.path), failure, reach, config, half, reach_cfg.chunk, str(folder), writer.unit,
+                        writer.packers, writer.push is not None, sys.getswitchinterval()),
+                claims.claim_for_peer,
+                lambda a, b: (writer.saved(a, b), bar.update(2 * (b - a))),
+                lambda peer, error: writer.failed(error, claims.peer_units(peer)),
+            )  # fmt: skip
+        k = 0
+        while True:
+            got = claims.claim()
+            if got is not None:
+                i = k % len(kernel_sets)
+                window.append(pools[i].submit(job, kernel_sets[i], *got))
+                k += 1
+            while len(window) >= (threads + ahead) * len(kernel_sets) or (window and got is None):
                 t = time.perf_counter()
                 samples, idx, rolled = window.popleft().result()
                 t2 = time.perf_counter()
@@ -373,9 +400,20 @@ def _build_map(
                     writer.put(samples, idx, rolled)
                 main["wait"] += t2 - t
                 main["hand_over"] += time.perf_counter() - t2
+            if got is None:
+                break
+        if peers is not None:
+            t = time.perf_counter()
+            peer_results = peers.finish(lambda i: bool(claims.peer_units(i)))  # (their last units saved)
+            main["peers_wait"] = time.perf_counter() - t
+            if writer is not None and writer.push is not None:
+                for r in peer_results:
+                    writer.push.result().merge(**r["push"])
     except BaseException as e:
         if writer is not None:
             writer.abort(wait=not isinstance(e, KeyboardInterrupt))
+        if peers is not None:
+            peers.stop()
         raise
     finally:
         for pool in pools:
@@ -387,7 +425,7 @@ def _build_map(
     stages = _compile_by_stage(robot, failure, reach_cfg, reach_compile, kernel_sets)
     if writer is not None:
         try:
-            summary |= writer.finish(out, _totals(kernel_sets, stages["edges"]), edge_seconds, device)
+            summary |= writer.finish(out, _totals(kernel_sets, stages["edges"], peer_results), edge_seconds, device)
         except BaseException as e:
             writer.abort(wait=not isinstance(e, KeyboardInterrupt))
             raise
@@ -402,6 +440,8 @@ def _build_map(
         summary["edges_wall_seconds"] = round(time.perf_counter() - t1 - compile_seconds, 4)
         summary["main_timing"] = {k: round(v, 4) for k, v in main.items()}
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
+        if peers is not None:  # each peer process's figures: its start, its share, its times
+            summary["peers"] = [{k: v for k, v in r.items() if k != "push"} for r in peer_results]
         # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the
         # host, its programs' compilation (none where this process or the cache has them)
         summary["index"] = index_figures
@@ -457,17 +497,60 @@ def _compile_by_stage(
     }
 
 
-def _totals(kernel_sets: list[EdgeKernels], compile_seconds: float) -> dict:
+def _totals(kernel_sets: list[EdgeKernels], compile_seconds: float, peers: list[dict] | None = None) -> dict:
     """The build's kernel figures: the edges' compilation (`_compile_by_stage`), run times
-    summed over the devices (device-seconds)."""
+    summed over the devices (device-seconds), the peer processes' (`peers`) included."""
+    peers = peers or []
     timing: dict[str, float] = {}
-    for ks in kernel_sets:
-        for k, v in ks.rollout.timing.items():
+    for t in [ks.rollout.timing for ks in kernel_sets] + [r["rollout_timing"] for r in peers]:
+        for k, v in t.items():
             timing[k] = timing.get(k, 0.0) + v
     return {
         "compile_seconds": compile_seconds,
-        "rollout_seconds": sum(ks.rollout.kernel_seconds for ks in kernel_sets),
+        "rollout_seconds": sum(ks.rollout.kernel_seconds for ks in kernel_sets)
+        + sum(r["rollout_seconds"] for r in peers),
         "rollout_timing": timing,
-        "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets),
-        "ik_seconds": sum(ks.ik.kernel_seconds for ks in kernel_sets),
+        "rollout_copied_bytes": sum(ks.rollout.copied_bytes for ks in kernel_sets)
+        + sum(r["rollout_copied_bytes"] for r in peers),
+        "ik_seconds": sum(ks.ik.kernel_seconds for ks in kernel_sets) + sum(r["ik_seconds"] for r in peers),
     }
+
+
+class Claims:
+    """The chunks left to compute, claimed in edge order by this process (`claim`) and its
+    peer processes (`claim_for_peer`); each claim registers its units with the map writer
+    (`MapWriter.claim`), which hands them over in edge order whoever computes them."""
+
+    def __init__(self, todo: list[tuple[int, int]], writer: MapWriter | None) -> None:
+        self.todo, self.writer = todo, writer
+        self.next = 0
+        self.lock = threading.Lock()
+        self.by_peer: dict[int, set[int]] = {}  # peer -> the starts of its claimed units
+
+    def _claim(self) -> tuple[int, int] | None:
+        if self.next == len(self.todo):
+            return None
+        a, b = self.todo[self.next]
+        self.next += 1
+        if self.writer is not None:
+            self.writer.claim(a, b)
+        return a, b
+
+    def claim(self) -> tuple[int, int] | None:
+        """The next chunk for this process (None: none left)."""
+        with self.lock:
+            return self._claim()
+
+    def claim_for_peer(self, peer: int) -> tuple[int, int] | None:
+        """The next chunk for peer `peer` (None: none left)."""
+        with self.lock:
+            got = self._claim()
+            if got is not None and self.writer is not None:
+                units = self.by_peer.setdefault(peer, set())
+                units.update(u for u, _ in chunk_ranges(got[1], self.writer.unit, got[0]))
+            return got
+
+    def peer_units(self, peer: int) -> set[int]:
+        """The starts of the units peer `peer` claimed."""
+        with self.lock:
+            return set(self.by_peer.get(peer, set()))

@@ -123,6 +123,17 @@ class BuildPushCounts:
             self.edges += len(states.length)
             self.seconds += time.perf_counter() - t0
 
+    def merge(self, counts: np.ndarray, edges: int, seconds: float) -> None:
+        """Add counts summed elsewhere over `edges` other edges (a build's peer process:
+        `lmjx.edges.peers`), in `seconds`."""
+        counts = np.asarray(counts, np.int64)
+        if counts.shape != self.counts.shape:
+            raise RuntimeError(f"push counts of shape {counts.shape} added to counts of {self.counts.shape}")
+        with self._lock:
+            self.counts += counts
+            self.edges += int(edges)
+            self.seconds += float(seconds)
+
     def entries(self, bundle: Bundle | KeyedEdges) -> list[StoredCounts]:
         """The summed counts under the planner's keys (`counts_key` of the whole map's
         edges: `KeyedEdges.read` of the written map)."""

@@ -1,0 +1,402 @@
+"""A streamed build's peer processes: on a host with several GPUs, one process per GPU
+beyond the first computes chunks of edges beside the build's own process.
+
+Why processes: a build's per-chunk host work (drawing edges, collecting rollouts, packing
+them with their index pairs, their push counts, saving them) runs on some forty threads.
+In one process with two GPUs those threads share one interpreter lock and one address
+space (every large buffer mapped and unmapped under one lock: `runtime.hostmem`), and a
+second GPU made a 5,000,000-edge build no faster (benchmarks/RESULTS.md).  A peer is a
+clean interpreter that sees one GPU: it runs the same programs as a one-GPU build (JAX's
+persistent cache holds them once for every GPU of a kind) and the same pipeline, so the
+host work grows with the GPUs.
+
+The work is shared chunk by chunk: a peer asks the build's process for the next chunk of
+the sampling order whenever it has room, computes it, packs it in the build's units, saves
+each unit to the partial folder (`chunkfile`: what the writing process reads) and says so;
+the build's process hands the units to the writing process in edge order, whichever
+process computed them.  Edges come from counter-based streams, so the map is the same
+whichever process computes which chunk (and the same as a one-GPU build's).  Its push
+counts, summed over its units, come back at the end and are added to the build's.
+
+A peer is started with the build (`Peers`), so that its start (importing JAX, starting
+the GPU, loading the programs) overlaps the build's reach map; it runs in a process group
+of its own (Ctrl-C reaches the build, which stops it) and ends when its pipe closes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from lmjx.edges.bundle import BundleConfig
+from lmjx.edges.chunk import chunk_ranges
+from lmjx.errors import LmjxError
+from lmjx.model.failure import Failure
+from lmjx.reach.reachability import ReachResult
+
+ENV = "LMJX_PEERS"  # "0": a build on several GPUs runs them all in its own process (`enabled`)
+CHUNK_THREADS = 2  # a peer's chunk threads (a one-GPU build's: `stream.CHUNK_THREADS["one"]`)
+UNITS_AHEAD = 4  # units a peer's packers may have waiting beyond one chunk's
+
+
+def enabled(platform: str) -> bool:
+    """Whether a build on several local devices of `platform` ("gpu", "cpu", ...) runs all
+    but the first in peers: on GPUs, unless `ENV` is "0"; elsewhere where it is "1" (host
+    devices share the cores a peer would add: the tests use it)."""
+    choice = os.environ.get(ENV, "").strip()
+    return choice == "1" or (platform == "gpu" and choice != "0")
+
+
+def peer_environment(device: Any) -> dict[str, str] | None:
+    """The environment of a peer that runs on `device` (a JAX device of this process) alone;
+    None where that cannot be said (a platform without a visible-devices setting)."""
+    env = dict(os.environ)
+    if device.platform == "cpu":  # (host devices, as the tests make them: one in the peer)
+        flags = re.sub(r"--xla_force_host_platform_device_count=\d+", "", env.get("XLA_FLAGS", "")).strip()
+        env["XLA_FLAGS"] = flags
+        env["JAX_PLATFORMS"] = "cpu"
+        return env
+    if device.platform != "gpu":
+        return None
+    version = str(getattr(device.client, "platform_version", "")).lower()
+    key = "JAX_ROCM_VISIBLE_DEVICES" if "rocm" in version else "JAX_CUDA_VISIBLE_DEVICES"
+    env[key] = str(device.local_hardware_id)
+    return env
+
+
+@dataclass(frozen=True)
+class PeerJob:
+    """What a peer needs to compute and pack chunks of a build: everything defining the
+    edges, where to save them, how to cut them into units, and whether to count pushes."""
+
+    robot: str  # the robot's MJCF path (`load_robot`)
+    failure: Failure
+    reach: ReachResult
+    config: BundleConfig
+    half: float  # the object's half height (the start IK's cube)
+    ik_chunk: int | None
+    folder: str
+    unit: int  # sampled edges per packing unit (`mapwriter.unit_edges`)
+    packers: int
+    push: bool  # sum the built-in scenarios' push counts (a build that is not resumed)
+    switch_interval: float
+
+
+class Peers:
+    """The build's side: peer processes started ahead of their job (`__init__`), given it
+    with `begin`, then served from a thread each: chunks claimed for them (`claim`), their
+    saved units reported (`saved(a, b)`), their end collected (`finish`)."""
+
+    def __init__(self, devices: list[Any]) -> None:
+        self.procs: list[subprocess.Popen] = []
+        self.to_peer: list[Connection] = []
+        self.from_peer: list[Connection] = []
+        self.devices = devices
+        self.results: list[dict | None] = [None] * len(devices)
+        self.error: BaseException | None = None
+        self.threads: list[threading.Thread] = []
+        self.dismissed: set[int] = set()  # peers stopped with nothing to do (`finish`)
+        self.started = time.perf_counter()
+        here = str(Path(__file__).resolve().parents[2])
+        try:
+            for device in devices:
+                env = peer_environment(device)
+                if env is None:
+                    raise RuntimeError(f"no peer process can be placed on {device}")
+                r_in, w_in = os.pipe()
+                r_out, w_out = os.pipe()
+                try:
+                    proc = subprocess.Popen([sys.executable, "-c", _START, here, str(r_in), str(w_out)],
+                                            pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL,
+                                            stdout=subprocess.DEVNULL, env=env, start_new_session=True)  # fmt: skip
+                except BaseException:
+                    for fd in (w_in, r_out):
+                        os.close(fd)
+                    raise
+                finally:
+                    os.close(r_in)
+                    os.close(w_out)
+                self.procs.append(proc)
+                self.to_peer.append(Connection(w_in, readable=False))
+                self.from_peer.append(Connection(r_out, writable=False))
+        except BaseException:
+            self.stop()
+            raise
+
+    def begin(
+        self,
+        job: PeerJob,
+        claim: Callable[[int], tuple[int, int] | None],
+        saved: Callable[[int, int], None],
+        failed: Callable[[int, BaseException], None],
+    ) -> None:
+        """Send each peer `job` and serve it from a thread: `claim(peer)` gives it its next
+        chunk (None: no more), `saved(a, b)` is told of each unit it saved, `failed(peer,
+        error)` of its failure (also kept in `error`, which `check` raises)."""
+        for i, conn in enumerate(self.to_peer):
+            try:
+                conn.send(job)
+            except OSError:
+                self._fail(i, self._gone(i), failed)
+                continue
+            t = threading.Thread(target=self._serve, args=(i, claim, saved, failed), name=f"lmjx-peer-{i}",
+                                 daemon=True)  # fmt: skip
+            t.start()
+            self.threads.append(t)
+
+    def _serve(self, i: int, claim, saved, failed) -> None:
+        conn_in, conn_out = self.from_peer[i], self.to_peer[i]
+        try:
+            while True:
+                kind, *rest = conn_in.recv()
+                if kind == "want":
+                    conn_out.send(("chunk", claim(i)))
+                elif kind == "saved":
+                    saved(*rest)
+                elif kind == "done":
+                    self.results[i] = rest[0]
+                    return
+                elif kind == "error":
+                    error, trace = rest
+                    if not isinstance(error, LmjxError):
+                        error.add_note(f"in the build's peer process on {self.devices[i]}:\n{trace}")
+                    self._fail(i, error, failed)
+                    return
+        except (EOFError, OSError):
+            if i not in self.dismissed:
+                self._fail(i, self._gone(i), failed)
+        except BaseException as e:  # (the build's side failed serving it: the build stops)
+            self._fail(i, e, failed)
+
+    def _gone(self, i: int) -> BaseException:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.procs[i].wait(5)
+        return RuntimeError(f"the build's peer process on {self.devices[i]} stopped (exit code {self.procs[i].poll()})")
+
+    def _fail(self, i: int, error: BaseException, failed) -> None:
+        if self.error is None:
+            self.error = error
+        failed(i, error)
+
+    def check(self) -> None:
+        """Raise a peer's failure."""
+        if self.error is not None:
+            raise self.error
+
+    def finish(self, claimed: Callable[[int], bool]) -> list[dict]:
+        """Once every chunk is claimed: wait for the end (its last unit saved) of each peer
+        that `claimed` a chunk, stop those that did not (still starting: a build done
+        before they were ready); the figures of the former back, in order."""
+        for i, proc in enumerate(self.procs):
+            if not claimed(i):
+                self.dismissed.add(i)
+                proc.terminate()
+        for t in self.threads:
+            while t.is_alive():
+                t.join(0.5)
+        self.check()
+        for i, proc in enumerate(self.procs):
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(10)
+            self.to_peer[i].close()
+            self.from_peer[i].close()
+        return [r for r in self.results if r is not None]
+
+    def stop(self) -> None:
+        """End the peers (where they still run) and close their pipes; again: nothing."""
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in self.procs:
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for conn in (*self.to_peer, *self.from_peer):
+            conn.close()
+
+    def __enter__(self) -> Peers:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+# The peer's program: lmjx from the build's folder (then off the path again), its pipes'
+# descriptors from the command line.
+_START = (
+    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx; sys.path.pop(0); import lmjx.edges.peers as p; "
+    "p.peer_process(int(sys.argv[2]), int(sys.argv[3]))"
+)
+
+
+def peer_process(inbox_fd: int, outbox_fd: int) -> None:
+    """A peer's entry point: its pipes from the build's process."""
+    from lmjx.runtime.hostmem import return_large_buffers
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return_large_buffers()  # as the build's process (lmjx.cli)
+    inbox, outbox = Connection(inbox_fd, writable=False), Connection(outbox_fd, readable=False)
+    t0 = time.perf_counter()
+    import jax
+
+    jax.devices()  # the GPU started while the build computes its reach map
+    try:
+        job = inbox.recv()
+    except (EOFError, OSError):  # the build stopped before it was sent whole
+        return
+    try:
+        result = _Peer(job, inbox, outbox, t0).run()
+        outbox.send(("done", result))
+    except (EOFError, BrokenPipeError):
+        return  # the build's process is gone
+    except BaseException as e:
+        trace = traceback.format_exc()
+        try:
+            outbox.send(("error", e, trace))
+        except Exception:  # an exception that does not pickle, or the build's process is gone
+            with contextlib.suppress(Exception):
+                outbox.send(("error", RuntimeError(f"{type(e).__name__}: {e}"), trace))
+
+
+class _Peer:
+    """A peer's work: its programs loaded, then chunks claimed from the build's process,
+    computed on `CHUNK_THREADS` threads, packed in units on `job.packers` threads."""
+
+    def __init__(self, job: PeerJob, inbox: Connection, outbox: Connection, t0: float) -> None:
+        self.job, self.inbox, self.outbox, self.t0 = job, inbox, outbox, t0
+        self.claim_lock = threading.Lock()  # a request and its answer
+        self.send_lock = threading.Lock()
+        self.figures = {"chunks": 0, "edges": 0, "draw": 0.0, "ik": 0.0, "rollout": 0.0, "pack": 0.0, "save": 0.0}
+        self.figures_lock = threading.Lock()
+
+    def _send(self, message: tuple) -> None:
+        with self.send_lock:
+            self.outbox.send(message)
+
+    def _claim(self) -> tuple[int, int] | None:
+        with self.claim_lock:
+            self._send(("want",))
+            kind, chunk = self.inbox.recv()
+        assert kind == "chunk", kind
+        return chunk
+
+    def run(self) -> dict:
+        from lmjx.edges.chunk import pack_chunk
+        from lmjx.edges.chunkfile import save
+        from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
+        from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, split_rolled
+        from lmjx.model.robot import load_robot
+        from lmjx.planner.pushbuild import BuildPushCounts
+        from lmjx.planner.pushsamples import compile_program
+
+        job = self.job
+        sys.setswitchinterval(job.switch_interval)
+        robot = load_robot(job.robot)
+        reach, config, folder = job.reach, job.config, Path(job.folder)
+        t_start = time.perf_counter() - self.t0
+        # the programs of a one-GPU build (sharded over the one device this process sees)
+        kernels = EdgeKernels(robot, job.failure, config, True, job.half, ik_chunk=job.ik_chunk)
+        t1 = time.perf_counter()
+        kernels.warm()
+        capsule_ends_kernel(robot).compile()
+        xs, ys = reach.config.grid()
+        warm_index(robot, len(xs), len(ys), reach.config.cell)
+        compile_program(robot)
+        push = BuildPushCounts(robot, job.failure, reach) if job.push else None
+        ready = time.perf_counter() - self.t0
+        load = time.perf_counter() - t1
+        index_before = index_totals()
+        most = config.edges_per_job()
+        room = threading.Semaphore(-(-most // job.unit) + UNITS_AHEAD)  # units being packed
+        errors: list[BaseException] = []
+        packs: list[Future] = []
+
+        def pack(samples, idx, rolled) -> None:
+            try:
+                t0 = time.perf_counter()
+                chunk = pack_chunk(reach, config, robot, samples, idx, rolled)
+                t1 = time.perf_counter()
+                save(folder, chunk)
+                t2 = time.perf_counter()
+                if push is not None:
+                    push.add(chunk.length, chunk.q)
+                with self.figures_lock:
+                    self.figures["pack"] += t1 - t0
+                    self.figures["save"] += t2 - t1
+                self._send(("saved", chunk.start, chunk.stop))
+            finally:
+                room.release()
+
+        def chunks(pool: ThreadPoolExecutor) -> None:
+            try:
+                while not errors:
+                    got = self._claim()
+                    if got is None:
+                        return
+                    a, b = got
+                    t0 = time.perf_counter()
+                    draws = draw_edges(reach, config, robot, a, b)
+                    t1 = time.perf_counter()
+                    samples = solve_starts(draws, kernels)
+                    t2 = time.perf_counter()
+                    idx, rolled = roll_out(samples, kernels)
+                    t3 = time.perf_counter()
+                    with self.figures_lock:
+                        for k, v in (("draw", t1 - t0), ("ik", t2 - t1), ("rollout", t3 - t2)):
+                            self.figures[k] += v
+                        self.figures["chunks"] += 1
+                        self.figures["edges"] += b - a
+                    for ua, ub in chunk_ranges(b, job.unit, a):
+                        room.acquire()
+                        packs.append(pool.submit(pack, *split_rolled(samples, idx, rolled, ua, ub)))
+                    del samples, idx, rolled
+            except BaseException as e:
+                errors.append(e)
+
+        with ThreadPoolExecutor(job.packers, thread_name_prefix="lmjx-pack") as pool:
+            threads = [threading.Thread(target=chunks, args=(pool,), name="lmjx-chunk") for _ in range(CHUNK_THREADS)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+        for f in packs:
+            f.result()  # (a packer's error)
+        if errors:
+            raise errors[0]
+        out = {
+            "device": str(jax_device()),
+            "start_seconds": round(t_start, 4),  # the interpreter, JAX and the GPU, the robot
+            "ready_seconds": round(ready, 4),  # ... and the programs loaded (or compiled)
+            "load_seconds": round(load, 4),
+            "compile_seconds": round(kernels.compile_seconds, 4),
+            "rollout_seconds": kernels.rollout.kernel_seconds,
+            "rollout_timing": dict(kernels.rollout.timing),
+            "rollout_copied_bytes": kernels.rollout.copied_bytes,
+            "ik_seconds": kernels.ik.kernel_seconds,
+            "index": index_totals(since=index_before),
+            **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.figures.items()},
+        }
+        if push is not None:
+            out["push"] = {"counts": push.counts, "edges": push.edges, "seconds": push.seconds}
+        return out
+
+
+def jax_device() -> Any:
+    import jax
+
+    return jax.local_devices()[0]
