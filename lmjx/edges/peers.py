@@ -309,8 +309,9 @@ class _Peer:
         robot = load_robot(job.robot)
         reach, config, folder = job.reach, job.config, Path(job.folder)
         t_start = time.perf_counter() - self.t0
-        # the programs of a one-GPU build (sharded over the one device this process sees)
-        kernels = EdgeKernels(robot, job.failure, config, True, job.half, ik_chunk=job.ik_chunk)
+        # the programs the build's process runs on its first device, placed on this one (JAX's
+        # persistent cache holds them once for every GPU of a kind: loaded, not compiled)
+        kernels = EdgeKernels(robot, job.failure, config, False, job.half, device=jax_device(), ik_chunk=job.ik_chunk)
         t1 = time.perf_counter()
         kernels.warm()
         capsule_ends_kernel(robot).compile()

@@ -442,6 +442,7 @@ def _build_map(
         summary["chunk_timing"] = {k: round(v, 4) for k, v in jobs.items()}
         if peers is not None:  # each peer process's figures: its start, its share, its times
             summary["peers"] = [{k: v for k, v in r.items() if k != "push"} for r in peer_results]
+            summary["peers_idle"] = len(peers.dismissed)  # (stopped still starting: the build was done first)
         # the spatial index (`lmjx.edges.index`): its passes, the borderline items settled on the
         # host, its programs' compilation (none where this process or the cache has them)
         summary["index"] = index_figures
