@@ -71,9 +71,15 @@ def peer_environment(device: Any) -> dict[str, str] | None:
         return env
     if device.platform != "gpu":
         return None
+    # the GPU by the driver's visible-devices list: the same list as this process's, cut to
+    # the entry of `device` (JAX numbers a process's GPUs in that list's order)
     version = str(getattr(device.client, "platform_version", "")).lower()
-    key = "JAX_ROCM_VISIBLE_DEVICES" if "rocm" in version else "JAX_CUDA_VISIBLE_DEVICES"
-    env[key] = str(device.local_hardware_id)
+    key = "HIP_VISIBLE_DEVICES" if "rocm" in version else "CUDA_VISIBLE_DEVICES"
+    visible = [v.strip() for v in env.get(key, "").split(",") if v.strip()]
+    ordinal = int(device.local_hardware_id)
+    if visible and ordinal >= len(visible):
+        return None
+    env[key] = visible[ordinal] if visible else str(ordinal)
     return env
 
 
@@ -254,12 +260,14 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
     t0 = time.perf_counter()
     import jax
 
-    jax.devices()  # the GPU started while the build computes its reach map
+    devices = jax.local_devices()  # the GPU started while the build computes its reach map
     try:
         job = inbox.recv()
     except (EOFError, OSError):  # the build stopped before it was sent whole
         return
     try:
+        if len(devices) != 1:  # (its environment did not leave it one device)
+            raise RuntimeError(f"a peer process sees {len(devices)} devices, not one: {devices}")
         result = _Peer(job, inbox, outbox, t0).run()
         outbox.send(("done", result))
     except (EOFError, BrokenPipeError):
@@ -381,6 +389,7 @@ class _Peer:
             raise errors[0]
         out = {
             "device": str(jax_device()),
+            "visible": {k: os.environ[k] for k in ("CUDA_VISIBLE_DEVICES", "HIP_VISIBLE_DEVICES") if k in os.environ},
             "start_seconds": round(t_start, 4),  # the interpreter, JAX and the GPU, the robot
             "ready_seconds": round(ready, 4),  # ... and the programs loaded (or compiled)
             "load_seconds": round(load, 4),
