@@ -470,28 +470,31 @@ def arm_index(robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | 
         return _INDEXES[key]
 
 
-_FIRST_ONLY = [0]  # builds under `first_device_only` (their other devices run in peer processes)
+_OWN: list[jax.Device | None] = []  # the devices `own_device` set, innermost last
 
 
 @contextlib.contextmanager
-def first_device_only():
-    """Within: `index_devices` is JAX's default device alone (a build whose other devices
-    each run in a peer process of their own: `lmjx.edges.peers`)."""
+def own_device(device: jax.Device | None = None):
+    """Within: `index_devices` is `device` alone (None: JAX's default device): a build's
+    process whose other devices run in peer processes (`lmjx.edges.peers`), or such a
+    peer, each placing its index and push work on its own device."""
     with _INDEXES_LOCK:
-        _FIRST_ONLY[0] += 1
+        _OWN.append(device)
     try:
         yield
     finally:
         with _INDEXES_LOCK:
-            _FIRST_ONLY[0] -= 1
+            _OWN.pop()
 
 
 def index_devices() -> list[jax.Device | None]:
     """The devices the map's index runs on, in turn: every local accelerator (None: JAX's
-    default, the first); on a CPU, or under `first_device_only`, the default device alone
-    (host devices share the cores)."""
+    default, the first); on a CPU the default device alone (host devices share the cores);
+    under `own_device`, its device."""
+    if _OWN:
+        return [_OWN[-1]]
     devices = jax.local_devices()
-    if devices[0].platform == "cpu" or _FIRST_ONLY[0]:
+    if devices[0].platform == "cpu":
         return [None]
     return [None, *devices[1:]]
 

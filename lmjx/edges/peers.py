@@ -26,6 +26,7 @@ of its own (Ctrl-C reaches the build, which stops it) and ends when its pipe clo
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import re
 import signal
@@ -60,27 +61,22 @@ def enabled(platform: str) -> bool:
     return choice == "1" or (platform == "gpu" and choice != "0")
 
 
-def peer_environment(device: Any) -> dict[str, str] | None:
-    """The environment of a peer that runs on `device` (a JAX device of this process) alone;
-    None where that cannot be said (a platform without a visible-devices setting)."""
+def peer_environment(device: Any) -> tuple[dict[str, str], int] | None:
+    """The environment of a peer that runs on `device` (a JAX device of this process), and
+    the device's number among the peer's local devices; None where there is no peer for it
+    (a platform other than GPUs and the host).  On GPUs the peer sees the GPUs this process
+    sees (the same environment): a JAX process seeing another set of devices compiles its
+    programs again rather than load them from JAX's persistent cache (measured on 2 H200s:
+    a peer shown one GPU was not ready before a 5,000,000-edge build ended)."""
     env = dict(os.environ)
     if device.platform == "cpu":  # (host devices, as the tests make them: one in the peer)
         flags = re.sub(r"--xla_force_host_platform_device_count=\d+", "", env.get("XLA_FLAGS", "")).strip()
         env["XLA_FLAGS"] = flags
         env["JAX_PLATFORMS"] = "cpu"
-        return env
+        return env, 0
     if device.platform != "gpu":
         return None
-    # the GPU by the driver's visible-devices list: the same list as this process's, cut to
-    # the entry of `device` (JAX numbers a process's GPUs in that list's order)
-    version = str(getattr(device.client, "platform_version", "")).lower()
-    key = "HIP_VISIBLE_DEVICES" if "rocm" in version else "CUDA_VISIBLE_DEVICES"
-    visible = [v.strip() for v in env.get(key, "").split(",") if v.strip()]
-    ordinal = int(device.local_hardware_id)
-    if visible and ordinal >= len(visible):
-        return None
-    env[key] = visible[ordinal] if visible else str(ordinal)
-    return env
+    return env, int(device.id)
 
 
 @dataclass(frozen=True)
@@ -99,6 +95,7 @@ class PeerJob:
     packers: int
     push: bool  # sum the built-in scenarios' push counts (a build that is not resumed)
     switch_interval: float
+    device: int = 0  # its device: the peer's jax.local_devices()[device]
 
 
 class Peers:
@@ -115,13 +112,16 @@ class Peers:
         self.error: BaseException | None = None
         self.threads: list[threading.Thread] = []
         self.dismissed: set[int] = set()  # peers stopped with nothing to do (`finish`)
+        self.numbers: list[int] = []  # each peer's device among its local devices
         self.started = time.perf_counter()
         here = str(Path(__file__).resolve().parents[2])
         try:
             for device in devices:
-                env = peer_environment(device)
-                if env is None:
+                placed = peer_environment(device)
+                if placed is None:
                     raise RuntimeError(f"no peer process can be placed on {device}")
+                env, number = placed
+                self.numbers.append(number)
                 r_in, w_in = os.pipe()
                 r_out, w_out = os.pipe()
                 try:
@@ -154,7 +154,7 @@ class Peers:
         error)` of its failure (also kept in `error`, which `check` raises)."""
         for i, conn in enumerate(self.to_peer):
             try:
-                conn.send(job)
+                conn.send(dataclasses.replace(job, device=self.numbers[i]))
             except OSError:
                 self._fail(i, self._gone(i), failed)
                 continue
@@ -260,15 +260,20 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
     t0 = time.perf_counter()
     import jax
 
-    devices = jax.local_devices()  # the GPU started while the build computes its reach map
+    jax.local_devices()  # the GPUs started while the build computes its reach map
     try:
         job = inbox.recv()
     except (EOFError, OSError):  # the build stopped before it was sent whole
         return
     try:
-        if len(devices) != 1:  # (its environment did not leave it one device)
-            raise RuntimeError(f"a peer process sees {len(devices)} devices, not one: {devices}")
-        result = _Peer(job, inbox, outbox, t0).run()
+        device = jax.local_devices()[job.device]
+        # every program and transfer not placed otherwise goes to its device, and the index's
+        # and the push counts' work (`index.own_device`)
+        jax.config.update("jax_default_device", device)
+        from lmjx.edges.index import own_device
+
+        with own_device(device):
+            result = _Peer(job, inbox, outbox, t0).run()
         outbox.send(("done", result))
     except (EOFError, BrokenPipeError):
         return  # the build's process is gone
@@ -319,10 +324,11 @@ class _Peer:
         t_start = time.perf_counter() - self.t0
         # the programs the build's process runs on its first device, placed on this one (JAX's
         # persistent cache holds them once for every GPU of a kind: loaded, not compiled)
-        kernels = EdgeKernels(robot, job.failure, config, False, job.half, device=jax_device(), ik_chunk=job.ik_chunk)
+        kernels = EdgeKernels(robot, job.failure, config, False, job.half, device=jax_device(job.device),
+                              ik_chunk=job.ik_chunk)  # fmt: skip
         t1 = time.perf_counter()
         kernels.warm()
-        capsule_ends_kernel(robot).compile()
+        capsule_ends_kernel(robot, device=jax_device(job.device)).compile()
         xs, ys = reach.config.grid()
         warm_index(robot, len(xs), len(ys), reach.config.cell)
         compile_program(robot)
@@ -388,8 +394,7 @@ class _Peer:
         if errors:
             raise errors[0]
         out = {
-            "device": str(jax_device()),
-            "visible": {k: os.environ[k] for k in ("CUDA_VISIBLE_DEVICES", "HIP_VISIBLE_DEVICES") if k in os.environ},
+            "device": str(jax_device(job.device)),
             "start_seconds": round(t_start, 4),  # the interpreter, JAX and the GPU, the robot
             "ready_seconds": round(ready, 4),  # ... and the programs loaded (or compiled)
             "load_seconds": round(load, 4),
@@ -406,7 +411,8 @@ class _Peer:
         return out
 
 
-def jax_device() -> Any:
+def jax_device(number: int) -> Any:
+    """This process's local device `number`."""
     import jax
 
-    return jax.local_devices()[0]
+    return jax.local_devices()[number]

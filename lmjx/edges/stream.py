@@ -60,7 +60,7 @@ from lmjx.edges.compiling import (
     preset_record,
 )
 from lmjx.edges.existing import build_plan, difference
-from lmjx.edges.index import capsule_ends_kernel, first_device_only, index_totals, warm_index
+from lmjx.edges.index import capsule_ends_kernel, index_totals, own_device, warm_index
 from lmjx.edges.mapwriter import MapWriter, WriterProcess
 from lmjx.edges.peers import PeerJob, Peers, peer_environment
 from lmjx.edges.peers import enabled as peers_enabled
@@ -242,7 +242,7 @@ def _build_map(
     if split and peers_enabled(local[0].platform) and all(peer_environment(d) is not None for d in local[1:]):
         peers = stack.enter_context(Peers(local[1:]))
         kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=local[0], ik_chunk=reach_cfg.chunk)]
-        stack.enter_context(first_device_only())  # this process's index and push work on its device
+        stack.enter_context(own_device(None))  # this process's index and push work on its device
     elif split:
         kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=d, ik_chunk=reach_cfg.chunk)
                        for d in jax.local_devices()]  # fmt: skip
