@@ -391,7 +391,7 @@ def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(t
     import jax
 
     from lmjx.edges.chunk import chunk_ranges, pack_chunk
-    from lmjx.edges.peers import PeerJob, Peers
+    from lmjx.edges.peers import PeerPrograms, Peers, PeerWork
     from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, split_rolled
     from lmjx.model.robot import load_robot
     from lmjx.planner.pushbuild import BuildPushCounts
@@ -403,12 +403,12 @@ def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(t
     chunks, unit = [(400, 800), (800, 1200)], 300  # (units that cut through chunks)
     folder = tmp_path / "peer"
     folder.mkdir()
-    job = PeerJob(str(TINY_ARM), reach.failure, reach, config, half, reach.config.chunk, str(folder), unit, 2, True,
-                  0.005)  # fmt: skip
+    programs = PeerPrograms(str(TINY_ARM), reach.failure, config, half, reach.config.chunk,
+                            (len(reach.xs), len(reach.ys), reach.config.cell), 0.005)  # fmt: skip
     left, saved, errors = list(chunks), [], []
-    with Peers([jax.local_devices()[0]] * 2) as peers:
-        peers.begin(job, lambda i: left.pop(0) if i == 0 and left else None, lambda a, b: saved.append((a, b)),
-                    lambda i, e: errors.append(e))  # fmt: skip
+    with Peers([jax.local_devices()[0]] * 2, programs) as peers:
+        peers.begin(PeerWork(reach, str(folder), unit, 2, True), lambda i: left.pop(0) if i == 0 and left else None,
+                    lambda a, b: saved.append((a, b)), lambda i, e: errors.append(e))  # fmt: skip
         results = peers.finish(lambda i: i == 0)  # (peer 0 ends once it is told there is no chunk left)
     assert errors == [] and len(results) == 1 and results[0]["chunks"] == 2 and results[0]["edges"] == 800
     units = [u for a, b in chunks for u in chunk_ranges(b, unit, a)]

@@ -80,22 +80,30 @@ def peer_environment(device: Any) -> tuple[dict[str, str], int] | None:
 
 
 @dataclass(frozen=True)
-class PeerJob:
-    """What a peer needs to compute and pack chunks of a build: everything defining the
-    edges, where to save them, how to cut them into units, and whether to count pushes."""
+class PeerPrograms:
+    """What defines a peer's programs, sent as it starts (it loads them while the build
+    computes its reach map): the robot, the failure, the edges' settings, the reach grid."""
 
     robot: str  # the robot's MJCF path (`load_robot`)
     failure: Failure
-    reach: ReachResult
     config: BundleConfig
     half: float  # the object's half height (the start IK's cube)
     ik_chunk: int | None
+    grid: tuple[int, int, float]  # the reach grid's nx, ny and cell (the index's programs)
+    switch_interval: float
+    device: int = 0  # its device: the peer's jax.local_devices()[device] (`Peers` sets it)
+
+
+@dataclass(frozen=True)
+class PeerWork:
+    """What a peer needs besides its programs to compute and pack chunks of a build: the
+    reach map, where to save the units, how to cut chunks into them, whether to count pushes."""
+
+    reach: ReachResult
     folder: str
     unit: int  # sampled edges per packing unit (`mapwriter.unit_edges`)
     packers: int
     push: bool  # sum the built-in scenarios' push counts (a build that is not resumed)
-    switch_interval: float
-    device: int = 0  # its device: the peer's jax.local_devices()[device]
 
 
 class Peers:
@@ -103,7 +111,7 @@ class Peers:
     with `begin`, then served from a thread each: chunks claimed for them (`claim`), their
     saved units reported (`saved(a, b)`), their end collected (`finish`)."""
 
-    def __init__(self, devices: list[Any]) -> None:
+    def __init__(self, devices: list[Any], programs: PeerPrograms) -> None:
         self.procs: list[subprocess.Popen] = []
         self.to_peer: list[Connection] = []
         self.from_peer: list[Connection] = []
@@ -138,23 +146,25 @@ class Peers:
                 self.procs.append(proc)
                 self.to_peer.append(Connection(w_in, readable=False))
                 self.from_peer.append(Connection(r_out, writable=False))
+                with contextlib.suppress(OSError):  # (a peer gone already: `begin` says so)
+                    self.to_peer[-1].send(dataclasses.replace(programs, device=number))
         except BaseException:
             self.stop()
             raise
 
     def begin(
         self,
-        job: PeerJob,
+        work: PeerWork,
         claim: Callable[[int], tuple[int, int] | None],
         saved: Callable[[int, int], None],
         failed: Callable[[int, BaseException], None],
     ) -> None:
-        """Send each peer `job` and serve it from a thread: `claim(peer)` gives it its next
+        """Send each peer `work` and serve it from a thread: `claim(peer)` gives it its next
         chunk (None: no more), `saved(a, b)` is told of each unit it saved, `failed(peer,
         error)` of its failure (also kept in `error`, which `check` raises)."""
         for i, conn in enumerate(self.to_peer):
             try:
-                conn.send(dataclasses.replace(job, device=self.numbers[i]))
+                conn.send(work)
             except OSError:
                 self._fail(i, self._gone(i), failed)
                 continue
@@ -262,18 +272,19 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
 
     jax.local_devices()  # the GPUs started while the build computes its reach map
     try:
-        job = inbox.recv()
+        programs = inbox.recv()
     except (EOFError, OSError):  # the build stopped before it was sent whole
         return
     try:
-        device = jax.local_devices()[job.device]
+        device = jax.local_devices()[programs.device]
         # every program and transfer not placed otherwise goes to its device, and the index's
         # and the push counts' work (`index.own_device`)
         jax.config.update("jax_default_device", device)
         from lmjx.edges.index import own_device
 
         with own_device(device):
-            result = _Peer(job, inbox, outbox, t0).run()
+            peer = _Peer(programs, device, inbox, outbox, t0)
+            result = peer.run(inbox.recv())
         outbox.send(("done", result))
     except (EOFError, BrokenPipeError):
         return  # the build's process is gone
@@ -287,15 +298,38 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
 
 
 class _Peer:
-    """A peer's work: its programs loaded, then chunks claimed from the build's process,
-    computed on `CHUNK_THREADS` threads, packed in units on `job.packers` threads."""
+    """A peer's work: its programs loaded (side by side, as it is made), then chunks claimed
+    from the build's process, computed on `CHUNK_THREADS` threads, packed in units on
+    `work.packers` threads."""
 
-    def __init__(self, job: PeerJob, inbox: Connection, outbox: Connection, t0: float) -> None:
-        self.job, self.inbox, self.outbox, self.t0 = job, inbox, outbox, t0
+    def __init__(self, programs: PeerPrograms, device: Any, inbox: Connection, outbox: Connection, t0: float) -> None:
+        from lmjx.edges.index import capsule_ends_kernel, warm_index
+        from lmjx.edges.sampling import EdgeKernels
+        from lmjx.model.robot import load_robot
+        from lmjx.planner.pushsamples import compile_program
+
+        self.programs, self.device, self.inbox, self.outbox, self.t0 = programs, device, inbox, outbox, t0
         self.claim_lock = threading.Lock()  # a request and its answer
         self.send_lock = threading.Lock()
         self.figures = {"chunks": 0, "edges": 0, "draw": 0.0, "ik": 0.0, "rollout": 0.0, "pack": 0.0, "save": 0.0}
         self.figures_lock = threading.Lock()
+        sys.setswitchinterval(programs.switch_interval)
+        self.robot = robot = load_robot(programs.robot)
+        self.start_seconds = time.perf_counter() - t0  # the interpreter, JAX and the GPUs, the robot
+        t1 = time.perf_counter()
+        # the programs the build's process runs on its first device, placed on this one (JAX's
+        # persistent cache holds them once for every GPU of a kind: loaded, not compiled)
+        self.kernels = EdgeKernels(robot, programs.failure, programs.config, False, programs.half, device=device,
+                                   ik_chunk=programs.ik_chunk)  # fmt: skip
+        nx, ny, cell = programs.grid
+        steps = [self.kernels.rollout.compile, self.kernels.ik.compile,
+                 capsule_ends_kernel(robot, device=device).compile, lambda: warm_index(robot, nx, ny, cell),
+                 lambda: compile_program(robot)]  # fmt: skip
+        with ThreadPoolExecutor(len(steps), thread_name_prefix="lmjx-compile") as pool:
+            for done in [pool.submit(step) for step in steps]:
+                done.result()
+        self.load_seconds = time.perf_counter() - t1
+        self.ready_seconds = time.perf_counter() - t0
 
     def _send(self, message: tuple) -> None:
         with self.send_lock:
@@ -308,36 +342,23 @@ class _Peer:
         assert kind == "chunk", kind
         return chunk
 
-    def run(self) -> dict:
+    def run(self, work: PeerWork) -> dict:
+        """Claim, compute, pack and save chunks until none is left; the figures back."""
         from lmjx.edges.chunk import pack_chunk
         from lmjx.edges.chunkfile import save
-        from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
-        from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, split_rolled
-        from lmjx.model.robot import load_robot
+        from lmjx.edges.index import index_totals
+        from lmjx.edges.sampling import draw_edges, roll_out, solve_starts, split_rolled
         from lmjx.planner.pushbuild import BuildPushCounts
-        from lmjx.planner.pushsamples import compile_program
 
-        job = self.job
-        sys.setswitchinterval(job.switch_interval)
-        robot = load_robot(job.robot)
-        reach, config, folder = job.reach, job.config, Path(job.folder)
-        t_start = time.perf_counter() - self.t0
-        # the programs the build's process runs on its first device, placed on this one (JAX's
-        # persistent cache holds them once for every GPU of a kind: loaded, not compiled)
-        kernels = EdgeKernels(robot, job.failure, config, False, job.half, device=jax_device(job.device),
-                              ik_chunk=job.ik_chunk)  # fmt: skip
-        t1 = time.perf_counter()
-        kernels.warm()
-        capsule_ends_kernel(robot, device=jax_device(job.device)).compile()
-        xs, ys = reach.config.grid()
-        warm_index(robot, len(xs), len(ys), reach.config.cell)
-        compile_program(robot)
-        push = BuildPushCounts(robot, job.failure, reach) if job.push else None
-        ready = time.perf_counter() - self.t0
-        load = time.perf_counter() - t1
+        programs, robot, kernels = self.programs, self.robot, self.kernels
+        reach, config, folder = work.reach, programs.config, Path(work.folder)
+        # the push counts' scenario fields made beside the first chunk (its packing waits for them)
+        making = ThreadPoolExecutor(1, thread_name_prefix="lmjx-push-fields")
+        fields = making.submit(BuildPushCounts, robot, programs.failure, reach) if work.push else None
+        making.shutdown(wait=False)
         index_before = index_totals()
         most = config.edges_per_job()
-        room = threading.Semaphore(-(-most // job.unit) + UNITS_AHEAD)  # units being packed
+        room = threading.Semaphore(-(-most // work.unit) + UNITS_AHEAD)  # units being packed
         errors: list[BaseException] = []
         packs: list[Future] = []
 
@@ -348,8 +369,8 @@ class _Peer:
                 t1 = time.perf_counter()
                 save(folder, chunk)
                 t2 = time.perf_counter()
-                if push is not None:
-                    push.add(chunk.length, chunk.q)
+                if fields is not None:
+                    fields.result().add(chunk.length, chunk.q)
                 with self.figures_lock:
                     self.figures["pack"] += t1 - t0
                     self.figures["save"] += t2 - t1
@@ -376,14 +397,14 @@ class _Peer:
                             self.figures[k] += v
                         self.figures["chunks"] += 1
                         self.figures["edges"] += b - a
-                    for ua, ub in chunk_ranges(b, job.unit, a):
+                    for ua, ub in chunk_ranges(b, work.unit, a):
                         room.acquire()
                         packs.append(pool.submit(pack, *split_rolled(samples, idx, rolled, ua, ub)))
                     del samples, idx, rolled
             except BaseException as e:
                 errors.append(e)
 
-        with ThreadPoolExecutor(job.packers, thread_name_prefix="lmjx-pack") as pool:
+        with ThreadPoolExecutor(work.packers, thread_name_prefix="lmjx-pack") as pool:
             threads = [threading.Thread(target=chunks, args=(pool,), name="lmjx-chunk") for _ in range(CHUNK_THREADS)]
             for t in threads:
                 t.start()
@@ -394,10 +415,10 @@ class _Peer:
         if errors:
             raise errors[0]
         out = {
-            "device": str(jax_device(job.device)),
-            "start_seconds": round(t_start, 4),  # the interpreter, JAX and the GPU, the robot
-            "ready_seconds": round(ready, 4),  # ... and the programs loaded (or compiled)
-            "load_seconds": round(load, 4),
+            "device": str(self.device),
+            "start_seconds": round(self.start_seconds, 4),  # the interpreter, JAX and the GPUs, the robot
+            "ready_seconds": round(self.ready_seconds, 4),  # ... and the programs loaded (or compiled)
+            "load_seconds": round(self.load_seconds, 4),
             "compile_seconds": round(kernels.compile_seconds, 4),
             "rollout_seconds": kernels.rollout.kernel_seconds,
             "rollout_timing": dict(kernels.rollout.timing),
@@ -406,13 +427,7 @@ class _Peer:
             "index": index_totals(since=index_before),
             **{k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.figures.items()},
         }
-        if push is not None:
+        if fields is not None:
+            push = fields.result()
             out["push"] = {"counts": push.counts, "edges": push.edges, "seconds": push.seconds}
         return out
-
-
-def jax_device(number: int) -> Any:
-    """This process's local device `number`."""
-    import jax
-
-    return jax.local_devices()[number]

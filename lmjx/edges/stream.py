@@ -62,7 +62,7 @@ from lmjx.edges.compiling import (
 from lmjx.edges.existing import build_plan, difference
 from lmjx.edges.index import capsule_ends_kernel, index_totals, own_device, warm_index
 from lmjx.edges.mapwriter import MapWriter, WriterProcess
-from lmjx.edges.peers import PeerJob, Peers, peer_environment
+from lmjx.edges.peers import PeerPrograms, Peers, PeerWork, peer_environment
 from lmjx.edges.peers import enabled as peers_enabled
 from lmjx.edges.preflight import DAY, Preflight, Work, preflight
 from lmjx.edges.preflight import duration_text as _duration
@@ -240,7 +240,10 @@ def _build_map(
     half = reach_cfg.object_height / 2
     peers: Peers | None = None
     if split and peers_enabled(local[0].platform) and all(peer_environment(d) is not None for d in local[1:]):
-        peers = stack.enter_context(Peers(local[1:]))
+        nx, ny = (len(a) for a in reach_cfg.grid())
+        programs = PeerPrograms(str(robot.path), failure, config, half, reach_cfg.chunk, (nx, ny, reach_cfg.cell),
+                                min(sys.getswitchinterval(), SWITCH_INTERVAL))  # fmt: skip
+        peers = stack.enter_context(Peers(local[1:], programs))
         kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=local[0], ik_chunk=reach_cfg.chunk)]
         stack.enter_context(own_device(None))  # this process's index and push work on its device
     elif split:
@@ -379,8 +382,7 @@ def _build_map(
             assert writer is not None
             writer.peers = peers
             peers.begin(
-                PeerJob(str(robot.path), failure, reach, config, half, reach_cfg.chunk, str(folder), writer.unit,
-                        writer.packers, writer.push is not None, sys.getswitchinterval()),
+                PeerWork(reach, str(folder), writer.unit, writer.packers, writer.push is not None),
                 claims.claim_for_peer,
                 lambda a, b: (writer.saved(a, b), bar.update(2 * (b - a))),
                 lambda peer, error: writer.failed(error, claims.peer_units(peer)),
