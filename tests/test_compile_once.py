@@ -202,8 +202,9 @@ def test_a_record_spares_looking_the_presets_up(tmp_path):
 
 
 def test_a_record_is_named_by_what_jax_keys_hold(monkeypatch):
-    """A record is read without lowering its programs: one made under other XLA flags or
-    JAX settings (whose programs JAX keys apart) is another record, not this one."""
+    """A record is read without lowering its programs: one made under other XLA flags, JAX
+    settings or another number of devices (whose programs JAX keys apart) is another record,
+    not this one."""
     programs = [("f", "test", _kernel(1.0))]
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     named = preset_record(programs)
@@ -216,7 +217,12 @@ def test_a_record_is_named_by_what_jax_keys_hold(monkeypatch):
         precise = preset_record(programs)
     finally:
         jax.config.update("jax_default_matmul_precision", before)
-    assert named is not None and len({named, flagged, precise}) == 3
+    shown = jax.devices()
+    real = jax.devices
+    monkeypatch.setattr(jax, "devices", lambda *a: shown * 2)  # (a process shown twice the devices)
+    doubled = preset_record(programs)
+    monkeypatch.setattr(jax, "devices", real)
+    assert named is not None and len({named, flagged, precise, doubled}) == 4
     assert preset_record(programs) == named
 
 

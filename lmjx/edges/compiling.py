@@ -88,17 +88,21 @@ def preset_record(programs: list[tuple[str, str, ChunkedKernel]]) -> Path | None
 
 def compile_setting() -> str:
     """What makes JAX's cache key of a program that `program_ident` leaves out: jaxlib's
-    version, the backend's (its driver and plugin), XLA's flags and the JAX settings that
-    change a trace.  A record is read without lowering its programs: where one of these
-    changed, the keys it holds are the old programs', still in the cache, not those a
-    build would compile now."""
+    version, the backend's (its driver and plugin) and how many devices it shows, XLA's flags
+    and the JAX settings that change a trace.  A record is read without lowering its
+    programs: where one of these changed, the keys it holds are the old programs', still in
+    the cache, not those a build would compile now.  (The devices: measured on 2 H200s, a
+    build shown one of them (CUDA_VISIBLE_DEVICES) after builds shown both compiled every
+    program again, the ones placed on one device included, and a record made under the two
+    said its presets were compiled.)"""
     import jax
     import jaxlib
 
-    backend = jax.devices()[0].client
-    return repr((jaxlib.__version__, getattr(backend, "platform_version", ""), os.environ.get("XLA_FLAGS", ""),
-                 os.environ.get("LIBTPU_INIT_ARGS", ""), bool(jax.config.jax_enable_x64),
-                 str(jax.config.jax_default_matmul_precision)))  # fmt: skip
+    devices = jax.devices()
+    backend = devices[0].client
+    return repr((jaxlib.__version__, getattr(backend, "platform_version", ""), len(devices),
+                 os.environ.get("XLA_FLAGS", ""), os.environ.get("LIBTPU_INIT_ARGS", ""),
+                 bool(jax.config.jax_enable_x64), str(jax.config.jax_default_matmul_precision)))  # fmt: skip
 
 
 @dataclass
