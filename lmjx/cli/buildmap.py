@@ -39,8 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "runs again, and a failed one keeps <out>.partial only where it holds computed edges (and says so).  A "
         "map already at --out that this command built (the same robot, failure, parameters and seed) is kept, "
         "and the command exits 0 at once; any other file there is replaced only with --overwrite.  Every local "
-        "accelerator shares the work; several hosts: the same command on each with "
-        "--coordinator HOST:PORT --num-processes N --process-id I.",
+        "GPU shares the work, each beyond the first from a process of its own (LMJX_PEERS=0: all from this one); "
+        "several hosts: the same command on each with --coordinator HOST:PORT --num-processes N --process-id I.",
     )
     p.add_argument("--failure", required=True, help=_failure_help())
     _add_robot(p)

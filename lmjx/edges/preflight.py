@@ -6,8 +6,9 @@ The estimate is a sum of stages, as the build runs them on the CPU: starting the
 the reach map, the edges' IK, their rollouts, the spatial index, the push counts, writing,
 and compiling (less for programs JAX's persistent cache already holds: they are loaded).
 On GPUs the edges' IK, rollouts and index gain what measured builds gained from each
-device beyond the first (`device_gain`: nothing yet, as the host's packing sets the pace); on
-a CPU the kernels' stages scale with the cores from the measuring machine's.
+device beyond the first (`device_gain`: a quarter, as each device's host work, in a process
+of its own, shares the host's cores and memory with the others'); on a CPU the kernels'
+stages scale with the cores from the measuring machine's.
 Nothing here computes or compiles anything.
 """
 
@@ -49,8 +50,9 @@ class StageRates:
     # thread's take)
     overlap: float
     # what each device beyond the first adds to the rate of the edges' stages (IK, rollouts,
-    # index): 1.0 where they scale with the devices; on GPUs the host's packing of the
-    # computed edges sets the pace (2 x H200: 5,000,000 edges as fast on two as on one)
+    # index): 1.0 where they scale with the devices; on GPUs the host's work on the computed
+    # edges sets the pace, each device's in a process of its own (`lmjx.edges.peers`) sharing
+    # the host (2 x H200: the edges of a 5,000,000-edge build 1.25-1.31x as fast on two)
     device_gain: float
     # compiling, per stage (the reach map's, the edges', the index's, the push counts'): the
     # wall time it adds to a build when compiled here (the edges' and the index's compile
@@ -99,7 +101,7 @@ RATES = {
         push_states_per_s=40_000_000.0,
         write_states_per_s=40_000_000.0,
         overlap=0.75,
-        device_gain=0.0,
+        device_gain=0.25,
         compile_s={"reach": 10.0, "edges": 70.0, "index": 7.0, "push": 8.0},
         cached_s={"reach": 0.7, "edges": 0.8, "index": 0.6, "push": 0.0},
     ),
