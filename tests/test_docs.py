@@ -185,6 +185,7 @@ ALLOWED = (
     ("docs/DETAILS.md", r'scope="session"'),
     ("tests/conftest.py", r"request\.session\."),  # pytest's Session
     ("lmjx/edges/mapwriter.py", r"start_new_session=True"),  # an OS process session (setsid)
+    ("lmjx/edges/peers.py", r"start_new_session=True"),
     # the atlas file's run record: `sessions`, one entry per process run that built part of it
     ("lmjx/reach/atlas.py", r'"sessions"|\bsession\b'),
     ("lmjx/cli/atlas.py", r'"sessions"|\bsession\b'),
