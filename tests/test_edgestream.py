@@ -404,7 +404,7 @@ def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(t
     folder = tmp_path / "peer"
     folder.mkdir()
     programs = PeerPrograms(str(TINY_ARM), reach.failure, config, half, reach.config.chunk,
-                            (len(reach.xs), len(reach.ys), reach.config.cell), 0.005)  # fmt: skip
+                            (len(reach.xs), len(reach.ys), reach.config.cell), 0.005, "cpu")  # fmt: skip
     left, saved, errors = list(chunks), [], []
     with Peers([jax.local_devices()[0]] * 2, programs) as peers:
         peers.begin(PeerWork(reach, str(folder), unit, 2, True), lambda i: left.pop(0) if i == 0 and left else None,
@@ -428,3 +428,23 @@ def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(t
     assert results[0]["push"]["edges"] == push.edges > 0
     np.testing.assert_array_equal(results[0]["push"]["counts"], push.counts)
     assert push.counts.sum() > 0
+
+
+def test_a_peer_that_fails_stops_the_build_with_its_own_error(tiny_map, tmp_path):
+    """A peer process that cannot run (here: told its device is a GPU where it sees the host)
+    ends with its own error, handed to the build (`failed`, `check`), not a closed pipe's."""
+    import jax
+
+    from lmjx.edges.peers import PeerPrograms, Peers, PeerWork
+    from lmjx.model.robot import load_robot
+
+    m = load_map(tiny_map, load_robot(str(TINY_ARM)), with_edges=False)
+    reach = m.reach
+    programs = PeerPrograms(str(TINY_ARM), reach.failure, BundleConfig(), 0.025, None, (2, 2, 0.1), 0.005, "gpu")
+    errors = []
+    with Peers([jax.local_devices()[0]], programs) as peers:
+        peers.begin(PeerWork(reach, str(tmp_path), 300, 1, False), lambda i: None, lambda a, b: None,
+                    lambda i, e: errors.append(e))  # fmt: skip
+        with pytest.raises(RuntimeError, match="a peer process for the build's gpu device 0 sees"):
+            peers.finish(lambda i: True)
+    assert len(errors) == 1 and "sees" in str(errors[0])

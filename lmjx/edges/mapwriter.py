@@ -34,7 +34,7 @@ import subprocess
 import sys
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -404,6 +404,7 @@ class MapWriter:
         saving a chunk (a failed build, which then leaves no temporary file behind; an
         interrupted one leaves at once)."""
         self.stop.set()
+        self.failed(CancelledError())  # (the feeder waits for no unit any more)
         self.process.stop()
         self.pool.shutdown(wait=wait, cancel_futures=True)
         self.tmp.unlink(missing_ok=True)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import pickle
 import re
 import signal
 import subprocess
@@ -76,6 +77,8 @@ def peer_environment(device: Any) -> tuple[dict[str, str], int] | None:
         return env, 0
     if device.platform != "gpu":
         return None
+    # the GPUs' memory taken as needed: the build's process and the peers share every GPU's
+    env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     return env, int(device.id)
 
 
@@ -91,6 +94,7 @@ class PeerPrograms:
     ik_chunk: int | None
     grid: tuple[int, int, float]  # the reach grid's nx, ny and cell (the index's programs)
     switch_interval: float
+    platform: str = "gpu"  # its devices' platform (JAX's `Device.platform`)
     device: int = 0  # its device: the peer's jax.local_devices()[device] (`Peers` sets it)
 
 
@@ -162,20 +166,18 @@ class Peers:
         """Send each peer `work` and serve it from a thread: `claim(peer)` gives it its next
         chunk (None: no more), `saved(a, b)` is told of each unit it saved, `failed(peer,
         error)` of its failure (also kept in `error`, which `check` raises)."""
-        for i, conn in enumerate(self.to_peer):
-            try:
-                conn.send(work)
-            except OSError:
-                self._fail(i, self._gone(i), failed)
-                continue
-            t = threading.Thread(target=self._serve, args=(i, claim, saved, failed), name=f"lmjx-peer-{i}",
+        for i in range(len(self.procs)):
+            t = threading.Thread(target=self._serve, args=(i, work, claim, saved, failed), name=f"lmjx-peer-{i}",
                                  daemon=True)  # fmt: skip
             t.start()
             self.threads.append(t)
 
-    def _serve(self, i: int, claim, saved, failed) -> None:
+    def _serve(self, i: int, work: PeerWork, claim, saved, failed) -> None:
+        """Peer i's thread: its work sent (here: a reach map fills the pipe until the peer,
+        loading its programs, reads it), then its requests and reports answered."""
         conn_in, conn_out = self.from_peer[i], self.to_peer[i]
         try:
+            conn_out.send(work)
             while True:
                 kind, *rest = conn_in.recv()
                 if kind == "want":
@@ -198,8 +200,19 @@ class Peers:
             self._fail(i, e, failed)
 
     def _gone(self, i: int) -> BaseException:
+        """Why peer i's pipe closed: the error it sent before it ended, else how it ended."""
         with contextlib.suppress(subprocess.TimeoutExpired):
             self.procs[i].wait(5)
+        try:
+            while self.from_peer[i].poll(0.5):
+                kind, *rest = self.from_peer[i].recv()
+                if kind == "error":
+                    error, trace = rest
+                    if not isinstance(error, LmjxError):
+                        error.add_note(f"in the build's peer process on {self.devices[i]}:\n{trace}")
+                    return error
+        except (EOFError, OSError, ValueError):
+            pass
         return RuntimeError(f"the build's peer process on {self.devices[i]} stopped (exit code {self.procs[i].poll()})")
 
     def _fail(self, i: int, error: BaseException, failed) -> None:
@@ -268,15 +281,18 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
     return_large_buffers()  # as the build's process (lmjx.cli)
     inbox, outbox = Connection(inbox_fd, writable=False), Connection(outbox_fd, readable=False)
     t0 = time.perf_counter()
-    import jax
+    try:
+        import jax
 
-    jax.local_devices()  # the GPUs started while the build computes its reach map
-    try:
-        programs = inbox.recv()
-    except (EOFError, OSError):  # the build stopped before it was sent whole
-        return
-    try:
-        device = jax.local_devices()[programs.device]
+        devices = jax.local_devices()  # the GPUs started while the build computes its reach map
+        try:
+            programs = inbox.recv()
+        except (EOFError, OSError):  # the build stopped before it was sent whole
+            return
+        if programs.device >= len(devices) or devices[programs.device].platform != programs.platform:
+            raise RuntimeError(f"a peer process for the build's {programs.platform} device {programs.device} sees "
+                               f"{devices}")  # fmt: skip
+        device = devices[programs.device]
         # every program and transfer not placed otherwise goes to its device, and the index's
         # and the push counts' work (`index.own_device`)
         jax.config.update("jax_default_device", device)
@@ -291,10 +307,11 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
     except BaseException as e:
         trace = traceback.format_exc()
         try:
+            pickle.loads(pickle.dumps(e))  # (one whose arguments do not make it again fails in the build)
+        except Exception:
+            e = RuntimeError(f"{type(e).__name__}: {e}")
+        with contextlib.suppress(Exception):  # (the build's process gone)
             outbox.send(("error", e, trace))
-        except Exception:  # an exception that does not pickle, or the build's process is gone
-            with contextlib.suppress(Exception):
-                outbox.send(("error", RuntimeError(f"{type(e).__name__}: {e}"), trace))
 
 
 class _Peer:
@@ -364,6 +381,8 @@ class _Peer:
 
         def pack(samples, idx, rolled) -> None:
             try:
+                if errors:  # (the peer is stopping: a unit it cannot save is not packed)
+                    return
                 t0 = time.perf_counter()
                 chunk = pack_chunk(reach, config, robot, samples, idx, rolled)
                 t1 = time.perf_counter()
@@ -375,6 +394,9 @@ class _Peer:
                     self.figures["pack"] += t1 - t0
                     self.figures["save"] += t2 - t1
                 self._send(("saved", chunk.start, chunk.stop))
+            except BaseException as e:  # (the chunk threads claim no more; `run` raises it)
+                errors.append(e)
+                raise
             finally:
                 room.release()
 

@@ -242,7 +242,7 @@ def _build_map(
     if split and peers_enabled(local[0].platform) and all(peer_environment(d) is not None for d in local[1:]):
         nx, ny = (len(a) for a in reach_cfg.grid())
         programs = PeerPrograms(str(robot.path), failure, config, half, reach_cfg.chunk, (nx, ny, reach_cfg.cell),
-                                min(sys.getswitchinterval(), SWITCH_INTERVAL))  # fmt: skip
+                                min(sys.getswitchinterval(), SWITCH_INTERVAL), local[0].platform)  # fmt: skip
         peers = stack.enter_context(Peers(local[1:], programs))
         kernel_sets = [EdgeKernels(robot, failure, config, False, half, device=local[0], ik_chunk=reach_cfg.chunk)]
         stack.enter_context(own_device(None))  # this process's index and push work on its device
