@@ -184,8 +184,7 @@ ALLOWED = (
     ("tests/*.py", r'scope="session"'),  # pytest's fixture scope
     ("docs/DETAILS.md", r'scope="session"'),
     ("tests/conftest.py", r"request\.session\."),  # pytest's Session
-    ("lmjx/edges/mapwriter.py", r"start_new_session=True"),  # an OS process session (setsid)
-    ("lmjx/edges/peers.py", r"start_new_session=True"),
+    ("lmjx/runtime/child.py", r"start_new_session=True"),  # an OS process session (setsid)
     # the atlas file's run record: `sessions`, one entry per process run that built part of it
     ("lmjx/reach/atlas.py", r'"sessions"|\bsession\b'),
     ("lmjx/cli/atlas.py", r'"sessions"|\bsession\b'),

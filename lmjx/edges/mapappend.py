@@ -35,7 +35,6 @@ import h5py
 import numpy as np
 
 from lmjx.edges import chunkfile
-from lmjx.errors import LmjxError
 from lmjx.mapfile.digest import Given, NotAsGivenError, RunningDigest, content_digest
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import PER_EDGE, PER_STATE
@@ -260,14 +259,6 @@ class _Appender:
                 yield block
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
-
-
-def annotated(e: BaseException, trace: str) -> BaseException:
-    """The writing process's exception, with its traceback there as a note (but for a
-    user's error, whose message says it all)."""
-    if not isinstance(e, LmjxError):
-        e.add_note(f"in the map-writing process:\n{trace}")
-    return e
 
 
 def peak_rss() -> int:

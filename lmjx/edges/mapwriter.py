@@ -31,17 +31,15 @@ import os
 import queue
 import shutil
 import subprocess
-import sys
 import threading
 import time
 from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
-from multiprocessing.connection import Connection
 from pathlib import Path
 
 from lmjx.edges import chunkfile
 from lmjx.edges.bundle import BundleConfig, reasons
 from lmjx.edges.chunk import EdgeChunk, chunk_ranges, pack_chunk
-from lmjx.edges.mapappend import Job, annotated, peak_rss
+from lmjx.edges.mapappend import Job, peak_rss
 from lmjx.edges.sampling import split_rolled
 from lmjx.mapfile.digest import DIGEST_ATTR
 from lmjx.mapfile.h5 import h5open
@@ -49,6 +47,7 @@ from lmjx.mapfile.pushcounts import write_push_counts
 from lmjx.mapfile.write import IndexGrid, edges_group, push_counts_of, write_head
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
+from lmjx.runtime.child import annotated, start_child
 from lmjx.runtime.cores import usable_cores
 
 # Sampled edges packed (and saved to the partial folder) at a time; not part of the result
@@ -58,6 +57,7 @@ PACK_EDGES = int(os.environ.get("LMJX_PACK_EDGES", 1 << 16))
 MIN_PACK_EDGES = 1 << 13
 # the chunk arrays the writing process appends (the index pairs are read at the end)
 APPENDED = tuple(k for k in EdgeChunk.ARRAYS if k != "index_edge")
+WRITER = "the map-writing process"  # (where its errors say they happened)
 
 
 def unit_edges(edges: int, packers: int) -> int:
@@ -88,22 +88,9 @@ class WriterProcess:
     closes: `stop` ends one never given a job (a build that stopped before its edges)."""
 
     def __init__(self) -> None:
-        r_in, w_in = os.pipe()
-        r_out, w_out = os.pipe()
-        here = str(Path(__file__).resolve().parents[2])
-        try:
-            self.proc = subprocess.Popen([sys.executable, "-c", _START, here, str(r_in), str(w_out)],
-                                         pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                         env=dict(os.environ, JAX_PLATFORMS="cpu"), start_new_session=True)  # fmt: skip
-        except BaseException:
-            for fd in (w_in, r_out):
-                os.close(fd)
-            raise
-        finally:
-            os.close(r_in)
-            os.close(w_out)
-        self.to_writer = Connection(w_in, readable=False)
-        self.from_writer = Connection(r_out, writable=False)
+        self.proc, self.to_writer, self.from_writer = start_child(
+            "lmjx.edges.mapappend", "writer_process", dict(os.environ, JAX_PLATFORMS="cpu")
+        )
 
     def stop(self) -> None:
         """End the process (where it still runs) and close its pipes; again: nothing."""
@@ -301,10 +288,10 @@ class MapWriter:
             if self.from_writer.poll(0.5):
                 kind, payload, trace = self.from_writer.recv()
                 if kind == "error":
-                    return annotated(payload, trace)
+                    return annotated(payload, trace, WRITER)
         except (EOFError, OSError, ValueError):
             pass
-        return RuntimeError(f"the map-writing process stopped (exit code {self.proc.poll()})")
+        return RuntimeError(f"{WRITER} stopped (exit code {self.proc.poll()})")
 
     def finish(self, out: Path, kernels: dict, edge_seconds: float, device: str) -> dict:
         """Wait for the map, move it to `out` (the partial folder is removed); the build's
@@ -393,7 +380,7 @@ class MapWriter:
         except (EOFError, OSError):  # it died: how
             raise self._writer_failure() from None
         if kind == "error":
-            raise annotated(payload, trace)
+            raise annotated(payload, trace, WRITER)
         if kind != expected:
             raise RuntimeError(f"the map writer sent '{kind}', not '{expected}'")
         return payload
@@ -408,14 +395,6 @@ class MapWriter:
         self.process.stop()
         self.pool.shutdown(wait=wait, cancel_futures=True)
         self.tmp.unlink(missing_ok=True)
-
-
-# The writing process's program: lmjx from the build's folder (then off the path again, so
-# that it shadows nothing), its pipes' descriptors from the command line.
-_START = (
-    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx; sys.path.pop(0); import lmjx.edges.mapappend as m; "
-    "m.writer_process(int(sys.argv[2]), int(sys.argv[3]))"
-)
 
 
 class _Background:

@@ -45,9 +45,9 @@ from typing import Any
 
 from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
-from lmjx.errors import LmjxError
 from lmjx.model.failure import Failure
 from lmjx.reach.reachability import ReachResult
+from lmjx.runtime.child import annotated, start_child
 
 ENV = "LMJX_PEERS"  # "0": a build on several GPUs runs them all in its own process (`enabled`)
 CHUNK_THREADS = 2  # a peer's chunk threads (a one-GPU build's: `stream.CHUNK_THREADS["one"]`)
@@ -125,8 +125,6 @@ class Peers:
         self.threads: list[threading.Thread] = []
         self.dismissed: set[int] = set()  # peers stopped with nothing to do (`finish`)
         self.numbers: list[int] = []  # each peer's device among its local devices
-        self.started = time.perf_counter()
-        here = str(Path(__file__).resolve().parents[2])
         try:
             for device in devices:
                 placed = peer_environment(device)
@@ -134,22 +132,10 @@ class Peers:
                     raise RuntimeError(f"no peer process can be placed on {device}")
                 env, number = placed
                 self.numbers.append(number)
-                r_in, w_in = os.pipe()
-                r_out, w_out = os.pipe()
-                try:
-                    proc = subprocess.Popen([sys.executable, "-c", _START, here, str(r_in), str(w_out)],
-                                            pass_fds=(r_in, w_out), stdin=subprocess.DEVNULL,
-                                            stdout=subprocess.DEVNULL, env=env, start_new_session=True)  # fmt: skip
-                except BaseException:
-                    for fd in (w_in, r_out):
-                        os.close(fd)
-                    raise
-                finally:
-                    os.close(r_in)
-                    os.close(w_out)
+                proc, to_peer, from_peer = start_child("lmjx.edges.peers", "peer_process", env)
                 self.procs.append(proc)
-                self.to_peer.append(Connection(w_in, readable=False))
-                self.from_peer.append(Connection(r_out, writable=False))
+                self.to_peer.append(to_peer)
+                self.from_peer.append(from_peer)
                 with contextlib.suppress(OSError):  # (a peer gone already: `begin` says so)
                     self.to_peer[-1].send(dataclasses.replace(programs, device=number))
         except BaseException:
@@ -188,10 +174,7 @@ class Peers:
                     self.results[i] = rest[0]
                     return
                 elif kind == "error":
-                    error, trace = rest
-                    if not isinstance(error, LmjxError):
-                        error.add_note(f"in the build's peer process on {self.devices[i]}:\n{trace}")
-                    self._fail(i, error, failed)
+                    self._fail(i, annotated(*rest, self._where(i)), failed)
                     return
         except (EOFError, OSError):
             if i not in self.dismissed:
@@ -207,13 +190,13 @@ class Peers:
             while self.from_peer[i].poll(0.5):
                 kind, *rest = self.from_peer[i].recv()
                 if kind == "error":
-                    error, trace = rest
-                    if not isinstance(error, LmjxError):
-                        error.add_note(f"in the build's peer process on {self.devices[i]}:\n{trace}")
-                    return error
+                    return annotated(*rest, self._where(i))
         except (EOFError, OSError, ValueError):
             pass
-        return RuntimeError(f"the build's peer process on {self.devices[i]} stopped (exit code {self.procs[i].poll()})")
+        return RuntimeError(f"{self._where(i)} stopped (exit code {self.procs[i].poll()})")
+
+    def _where(self, i: int) -> str:
+        return f"the build's peer process on {self.devices[i]}"
 
     def _fail(self, i: int, error: BaseException, failed) -> None:
         if self.error is None:
@@ -263,14 +246,6 @@ class Peers:
 
     def __exit__(self, *exc) -> None:
         self.stop()
-
-
-# The peer's program: lmjx from the build's folder (then off the path again), its pipes'
-# descriptors from the command line.
-_START = (
-    "import sys; sys.path.insert(0, sys.argv[1]); import lmjx; sys.path.pop(0); import lmjx.edges.peers as p; "
-    "p.peer_process(int(sys.argv[2]), int(sys.argv[3]))"
-)
 
 
 def peer_process(inbox_fd: int, outbox_fd: int) -> None:
