@@ -12,7 +12,7 @@ wires the library together: the work is in `lmjx.edges.stream` and `lmjx.evaluat
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -290,6 +290,7 @@ def plan_task(
     render: str | Path | None = None,
     say: Any = None,
     planner: Mapping[str, Any] | str | Path | None = None,
+    on_action: Callable[[int, int, StepRecord], None] | None = None,
 ) -> PlanResult:
     """Run one task closed loop, as `lmjx plan` does: push the target cube of `scenario`
     (1: clutter, 2: tunnel, 3: eleven boxes) of the task set `tasks` ("paper" or "hard")
@@ -309,7 +310,9 @@ def plan_task(
     read the map with this robot (default: the one it names); `failure`: refuse a map built
     for another failure; `render`: write the trial as a .png frame strip, .gif or .mp4 (needs
     OpenGL, e.g. MUJOCO_GL=osmesa); `say`: where the simulator's choice goes, once the
-    arguments are checked (default: nowhere).
+    arguments are checked (default: nowhere); `on_action(k, budget, step)`: called after each
+    executed action (the k-th of at most `budget`; its `StepRecord`, with `latency_s` and
+    `distance_after`), as `lmjx plan` prints its progress.
 
     Example (the map `make run` writes; Random simulates nothing, so this takes seconds):
 
@@ -370,6 +373,7 @@ def plan_task(
     if say is not None and sim_name != "none":  # once the settings are checked
         say(f"simulator {sim_name} ({why})")
     setup = setup_trial(rob, m, task, config, seed, backend=sim_name)
+    setup.planner.on_action = on_action
     simulator = setup.planner.sim
     recorder = None
     if render is not None:

@@ -7,6 +7,7 @@ from --help, and say in one line on stderr which key they set."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any
 
@@ -217,11 +218,18 @@ def cmd_plan(args: argparse.Namespace) -> int:
             print(f"lmjx plan: {line}", file=sys.stderr)
 
     tasks = task_set(args, args.scene is not None)
+    quiet = os.environ.get("LMJX_PROGRESS", "").strip() == "0"
+
+    def progress(k: int, budget: int, step) -> None:  # a line per executed action
+        say(f"action {k}/{budget}: target {step.distance_after * 100:.1f} cm from the goal, "
+            f"decided in {step.latency_s:.1f} s")  # fmt: skip
+
     r = plan_task(
         args.map, args.scene if args.scene is not None else args.scenario, asm=args.asm, seed=args.seed, tasks=tasks,
         sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
         failure=args.failure, render=args.render, say=say, planner=planner_levers(args),
+        on_action=None if quiet else progress,
     )  # fmt: skip
     say()
     res, summary = r.trial, r.summary()

@@ -34,6 +34,9 @@ from lmjx.runtime.batching import backend
 from lmjx.runtime.reprs import config_repr
 
 IK_FAILED = "ik"  # an edge whose start could not be solved
+# many edges' states at once (`Bundle.states`): name -> rows of all of them, in order; and
+# each edge's number of states
+EdgeStates = tuple[dict[str, np.ndarray], np.ndarray]
 MAX_EDGES = 50_000_000
 
 
@@ -174,6 +177,15 @@ class Bundle:
         sl = slice(int(self.offset[e]), int(self.offset[e] + self.length[e]))
         return {name: np.asarray(getattr(self, name)[sl]) for name in names}
 
+    def states(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> EdgeStates:
+        """The states of many edges at once: (name -> their rows concatenated in the order of
+        `edges`, (len(edges),) each edge's state count).  A lazily opened map reads every
+        chunk they touch in one pass (`StateReader.gather`)."""
+        edges = np.asarray(edges, np.int64)
+        lengths = np.asarray(self.length[edges], np.int64)
+        rows = state_rows(np.asarray(self.offset[edges], np.int64), lengths)
+        return {name: take_rows(getattr(self, name), rows) for name in names}, lengths
+
     def prefetch(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> None:
         """Read the states of many edges at once from a lazily opened map (a no-op when the
         states are in memory): `edge` then finds them decompressed."""
@@ -203,6 +215,24 @@ class Bundle:
             "edge_steps_per_s": round(self.edge_steps / max(self.rollout_seconds, 1e-9), 1),
             "device": self.device,
         }
+
+
+def take_rows(data: Any, rows: np.ndarray) -> np.ndarray:
+    """Rows `rows` of a state array: a numpy array, a `StateReader` (its `gather`) or an
+    HDF5 dataset (read in increasing order, each row once)."""
+    if hasattr(data, "gather"):
+        return data.gather(rows)
+    if isinstance(data, np.ndarray):
+        return data[rows]
+    unique, inverse = np.unique(rows, return_inverse=True)
+    return np.asarray(data[unique] if len(unique) else data[:0])[inverse]
+
+
+def state_rows(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The rows first[i] .. first[i] + lengths[i] - 1 of every i, concatenated in order."""
+    lengths = np.asarray(lengths, np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]) if len(lengths) else np.zeros(0, np.int64)
+    return np.repeat(np.asarray(first, np.int64) - starts, lengths) + np.arange(int(lengths.sum()))
 
 
 def reasons() -> tuple[str, ...]:

@@ -12,10 +12,12 @@ simulator that does not prefer batches (C MuJoCo) nothing is gained by advancing
 together, and a run stopped part-way keeps the trials that ended (each is recorded as it
 ends) instead of losing a whole group that had not finished.
 
-Planning time: a batch's seconds are charged to the trials in it in proportion to their
-candidates (a simulator that does not prefer batches is called per request, and each is
-charged its own call); the seconds it spent compiling (`lmjx.runtime.compiletime`: the GPU's graphs
-and kernels on first use) are apportioned the same way but kept out of planning time.
+Planning time: each decision waited for the whole batch its candidates were simulated in,
+and its latency counts the batch's wall seconds; the part of them spent on other trials'
+candidates (in proportion to the rollouts) is recorded apart (`StepRecord.shared_s`).  A
+simulator that does not prefer batches is called per request, each its own call.  The seconds
+a batch spent compiling (`lmjx.runtime.compiletime`: the GPU's graphs and kernels on first use)
+are kept out of planning time.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from lmjx.planner.edge_planner import simulate_request
+from lmjx.planner.edge_planner import execute_request, simulate_request
 from lmjx.planner.records import TrialResult
 from lmjx.planner.requests import Execute, Simulate, Simulated
 from lmjx.runtime.compiletime import compile_seconds
@@ -65,7 +67,7 @@ def run_lockstep(
                 else:
                     execs[i] = req
             answers = answers_next
-            futures = {i: pool.submit(trials[i][1].execute, req.action) for i, req in execs.items()}
+            futures = {i: pool.submit(execute_request, trials[i][1], req) for i, req in execs.items()}
             if sims:
                 assert sim is not None, "a trial asked for a simulation but no simulator was given"
                 answers.update(_simulate(sim, sims))
@@ -86,6 +88,6 @@ def _simulate(sim: Simulator, sims: dict[int, Simulate]) -> dict[int, Simulated]
         finals.append(np.concatenate(flat[at : at + len(ps)]))
         at += len(ps)
     return {
-        i: Simulated(final, seconds * req.rollouts / total, compiled * req.rollouts / total)
+        i: Simulated(final, seconds, compiled * req.rollouts / total, seconds * (1 - req.rollouts / total))
         for (i, req), final in zip(sims.items(), finals, strict=True)
     }

@@ -160,6 +160,31 @@ class StateReader:
             limit = max(1, self.cache_bytes // max(1, self.rows * self.width * 4))
             self._load(needed[:limit])
 
+    def gather(self, rows: np.ndarray) -> np.ndarray:
+        """Rows `rows` (any order, repeats allowed) as one (len(rows), w) array: every chunk
+        they touch decompressed at once (all cores), each row copied once."""
+        rows = np.asarray(rows, np.int64)
+        if not len(rows):
+            return np.zeros((0, self.width), self.dtype)
+        if not self.fast:  # (HDF5's own selection: increasing rows, each once)
+            unique, inverse = np.unique(rows, return_inverse=True)
+            return np.asarray(self._h5py_rows(unique))[inverse]
+        chunk = rows // self.rows
+        order = np.argsort(chunk, kind="stable")
+        bounds = np.flatnonzero(np.r_[True, chunk[order][1:] != chunk[order][:-1], True])
+        out = np.empty((len(rows), self.width), np.float32)
+        limit = max(1, self.cache_bytes // max(1, self.rows * self.width * 4) // 2)
+        with self._lock:
+            # at most half the cache at a time: a request never evicts its own chunks
+            for g in range(0, len(bounds) - 1, limit):
+                groups = range(g, min(g + limit, len(bounds) - 1))
+                blocks = self._load(int(chunk[order[bounds[i]]]) for i in groups)
+                for i in groups:
+                    take = order[bounds[i] : bounds[i + 1]]
+                    c = int(chunk[take[0]])
+                    out[take] = blocks[c][rows[take] - c * self.rows]
+        return out
+
     def __getitem__(self, key):
         if not self.fast or not isinstance(key, slice) or key.step not in (None, 1):
             return self._h5py_rows(key)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from typing import Any, TypeVar
 
 import numpy as np
@@ -34,8 +34,9 @@ import numpy as np
 from lmjx.edges.bundle import Bundle
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
+from lmjx.planner.phases import PhaseClock
 from lmjx.planner.records import StepRecord, TrialResult
-from lmjx.planner.requests import Execute, Request, Simulate, Simulated
+from lmjx.planner.requests import Execute, Executed, Request, Simulate, Simulated
 from lmjx.planner.scoring import (
     OFF_TABLE_PENALTY,
     TARGET_LOST,
@@ -81,6 +82,12 @@ def simulate_request(sim: Simulator, req: Simulate) -> Simulated:
     return Simulated(final, max(0.0, wall - compiled), compiled)
 
 
+def execute_request(executor: Executor, req: Execute) -> Executed:
+    t0 = time.perf_counter()
+    obs = executor.execute(req.action)
+    return Executed(obs, time.perf_counter() - t0)
+
+
 def drive(steps: Generator[Request, Any, T], sim: Simulator | None, executor: Executor | None = None) -> T:
     """Run a planner's generator to its end, answering each request at once."""
     answer: Any = None
@@ -94,7 +101,7 @@ def drive(steps: Generator[Request, Any, T], sim: Simulator | None, executor: Ex
             answer = simulate_request(sim, req)
         else:
             assert executor is not None
-            answer = executor.execute(req.action)
+            answer = execute_request(executor, req)
 
 
 class Planner:
@@ -142,6 +149,9 @@ class Planner:
         # rescoring's draws (`PlannerConfig.rescore_top`): a stream of their own, seeded by the
         # trial, so that the trial's other random choices are those it makes without them
         self.draws = np.random.default_rng(0)
+        self.clock = PhaseClock()  # where each decision's time goes (`StepRecord.phase_s`)
+        # told after each executed action: (its number, the action budget, its record)
+        self.on_action: Callable[[int, int, StepRecord], None] | None = None
 
     def choose(self, obs: Observation, rng: np.random.Generator) -> tuple[Action | None, StepRecord]:
         """One decision, simulating on this planner's simulator, timed as a trial times it
@@ -152,21 +162,23 @@ class Planner:
     def decide(self, obs: Observation, rng: np.random.Generator) -> Generator[Simulate, Simulated, tuple]:
         """One decision: yields the simulations it needs; returns (action or None, record)."""
         cfg = self.config
+        clock = self.clock
         target = obs.objects[0, :2]
-        self.transits.set_scene(self.sc, obs.objects)
-        half = float(self.sc.target.half[0])
-        edges = edges_over_target(self.bundle, self.reach, target, half, cfg.target_margin)
-        if cfg.futile_filter and self.futile:
-            keep = [e for e in edges if not self._futile_here((int(e), 0), target)]
-            edges = np.asarray(keep, edges.dtype)
-        order = rng.permutation(edges)
-        bundle: Any = self.bundle
-        if cfg.turn_edges:  # the map's own edges first, then turned copies (`lmjx.planner.turned`)
-            bundle, order = self._with_turned(order, target, half, rng)
-        now = float(self.field(target))
+        with clock.phase("offer"):
+            self.transits.set_scene(self.sc, obs.objects)
+            half = float(self.sc.target.half[0])
+            edges = edges_over_target(self.bundle, self.reach, target, half, cfg.target_margin)
+            if cfg.futile_filter and self.futile:
+                keep = [e for e in edges if not self._futile_here((int(e), 0), target)]
+                edges = np.asarray(keep, edges.dtype)
+            order = rng.permutation(edges)
+            bundle: Any = self.bundle
+            if cfg.turn_edges:  # the map's own edges first, then turned copies (`lmjx.planner.turned`)
+                bundle, order = self._with_turned(order, target, half, rng)
+            now = float(self.field(target))
         rec = StepRecord(-1, len(order), 0, None, float(goal_distance(self.sc, target)), 0.0, 0.0)
         if cfg.asm == "random":
-            acts = self.transits.actions(bundle, order, obs.robot_q, 1, self.came_from, self.trail)
+            acts = self.transits.actions(bundle, order, obs.robot_q, 1, self.came_from, self.trail, clock)
             if acts:
                 rec.edge, rec.turn_deg = acts[0].edge, _degrees(acts[0].turn)
             else:
@@ -176,23 +188,26 @@ class Planner:
             want = cfg.greedy_candidates
             if cfg.greedy_fraction is not None:
                 want = max(1, math.ceil(cfg.greedy_fraction * len(order)))
-            acts = self.transits.actions(bundle, order, obs.robot_q, want, self.came_from, self.trail)
+            acts = self.transits.actions(bundle, order, obs.robot_q, want, self.came_from, self.trail, clock)
             if not acts:
                 rec.no_action = dict(self.transits.last_tally)
                 return None, rec
             done = yield Simulate(obs.robot_q, obs.objects, acts)
-            s = score(self.sc, self.robot, done.objects, self.field)
-            chosen_by = s  # what Greedy's choice (`best_of`) minimises
-            rescoring = cfg.rescore_top > 0 and len(acts) > 1
+            with clock.phase("simulate"):
+                s = score(self.sc, self.robot, done.objects, self.field)
+                chosen_by = s  # what Greedy's choice (`best_of`) minimises
+                rescoring = cfg.rescore_top > 0 and len(acts) > 1
             if rescoring:
-                top = np.argsort(s, kind="stable")[: cfg.rescore_top]
-                resting = np.array([b.zc for b in self.sc.movable])
-                starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws, resting)
-                more = yield Simulate(obs.robot_q, starts, [acts[int(i)] for i in top])
-                drawn = score(self.sc, self.robot, more.objects, self.field).reshape(len(starts), len(top))
-                mean = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
-                chosen_by = np.full(len(s), np.inf)  # only the rescored candidates, by their mean
-                chosen_by[top] = np.where(np.isnan(mean), np.inf, mean)  # (a rollout gone non-finite loses)
+                with clock.phase("rescore"):
+                    top = np.argsort(s, kind="stable")[: cfg.rescore_top]
+                    resting = np.array([b.zc for b in self.sc.movable])
+                    starts = drawn_starts(obs.objects, cfg.rescore_draws - 1, self.draws, resting)
+                more = yield Simulate(obs.robot_q, starts, [acts[int(i)] for i in top], phase="rescore")
+                with clock.phase("rescore"):
+                    drawn = score(self.sc, self.robot, more.objects, self.field).reshape(len(starts), len(top))
+                    mean = (s[top] + drawn.sum(axis=0)) / (len(starts) + 1)
+                    chosen_by = np.full(len(s), np.inf)  # only the rescored candidates, by their mean
+                    chosen_by[top] = np.where(np.isnan(mean), np.inf, mean)  # (a rollout gone non-finite loses)
             best = self.best_of(chosen_by, rng)
             if rescoring:
                 rec.rescored = {
@@ -202,8 +217,9 @@ class Planner:
                 }
             if cfg.when_stuck == "options" and float(s[best]) > now - cfg.min_progress:
                 rescored_pick = best
-                best, rec.stuck = self._most_options(done.objects, s)
-                self.transits.set_scene(self.sc, obs.objects)  # the observed scene again
+                with clock.phase("simulate"):
+                    best, rec.stuck = self._most_options(done.objects, s)
+                    self.transits.set_scene(self.sc, obs.objects)  # the observed scene again
                 if rec.rescored is not None and best != rescored_pick:
                     rec.rescored["overridden"] = True  # the rule when stuck took another candidate
             rec.simulated = len(acts)
@@ -215,16 +231,17 @@ class Planner:
         tries = cfg.lazy_tries if cfg.lazy_cap else len(order)
         improved = False
         if self.batched:  # its tries at once, then the first improvement in their order
-            acts = self.transits.actions(bundle, order, obs.robot_q, tries, self.came_from, self.trail)
+            acts = self.transits.actions(bundle, order, obs.robot_q, tries, self.came_from, self.trail, clock)
             rec.simulated = len(acts)
             if acts:
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
-                for a, sc in zip(acts, score(self.sc, self.robot, done.objects, self.field), strict=True):
-                    if float(sc) < best_s:
-                        best_a, best_s = a, float(sc)
-                    if sc <= now - cfg.min_progress:
-                        improved = True
-                        break
+                with clock.phase("simulate"):
+                    for a, sc in zip(acts, score(self.sc, self.robot, done.objects, self.field), strict=True):
+                        if float(sc) < best_s:
+                            best_a, best_s = a, float(sc)
+                        if sc <= now - cfg.min_progress:
+                            improved = True
+                            break
             else:
                 rec.no_action = dict(self.transits.last_tally)
         else:  # one at a time, stopping at the first improvement
@@ -232,15 +249,17 @@ class Planner:
             for e in order:
                 if rec.simulated == tries:
                     break
-                self.transits.set_scene(self.sc, obs.objects)  # again: trials run together share `transits`
-                acts = self.transits.actions(bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail)
+                with clock.phase("offer"):
+                    self.transits.set_scene(self.sc, obs.objects)  # again: trials run together share `transits`
+                acts = self.transits.actions(bundle, np.array([e]), obs.robot_q, 1, self.came_from, self.trail, clock)
                 for k, v in self.transits.last_tally.items():
                     tally[k] += v
                 if not acts:
                     continue
                 rec.simulated += 1
                 done = yield Simulate(obs.robot_q, obs.objects, acts)
-                sc = float(score(self.sc, self.robot, done.objects, self.field)[0])
+                with clock.phase("simulate"):
+                    sc = float(score(self.sc, self.robot, done.objects, self.field)[0])
                 if sc < best_s:
                     best_a, best_s = acts[0], sc
                 if sc <= now - cfg.min_progress:
@@ -337,7 +356,8 @@ class Planner:
         planning = 0.0
         simulated = 0  # control steps simulated: the planning limit's count (host-independent)
         reason = "budget"
-        for _ in range(cfg.max_actions or self.sc.budget):
+        budget = cfg.max_actions or self.sc.budget
+        for _ in range(budget):
             if in_goal(self.sc, obs.objects[0, :2], cfg.goal_margin):
                 reason = "goal"
                 break
@@ -361,7 +381,9 @@ class Planner:
                 break
             t_before = obs.time
             before = obs.objects[0, :2].copy()
-            obs = yield Execute(action)
+            executed = yield Execute(action)
+            obs = executed.observation
+            rec.phase_s["execute"] = round(executed.seconds, 4)
             self.came_from, self.trail = after_executing(action, self.trail, self.bundle.q_start.dtype)
             closer = float(self.field(obs.objects[0, :2])) <= float(self.field(before)) - cfg.min_progress
             if cfg.futile_filter and not closer:
@@ -377,6 +399,8 @@ class Planner:
             rec.edge_first = action.edge_first
             rec.score_after = float(score(self.sc, self.robot, obs.objects[None], self.field)[0])
             steps.append(rec)
+            if self.on_action is not None:
+                self.on_action(sum(1 for s in steps if s.edge >= 0), budget, rec)
             if rec.score_after >= TARGET_LOST:
                 reason = "target off the table"
                 break
@@ -399,12 +423,15 @@ class Planner:
         )
 
     def _timed_decision(self, obs: Observation, rng: np.random.Generator):
-        """`decide`, with its planning time: own computation plus the simulations' charged
-        seconds, each less the compilation it included (JAX's, counted apart in `compile_s`;
-        the simulations' answers leave theirs out already); and the control steps its
-        simulations rolled out (`sim_steps`)."""
+        """`decide`, timed: its latency (`StepRecord.latency_s`: its own computation and the
+        wall time of the simulations it waited for, each less what was compiled meanwhile,
+        which is counted apart in `compile_s`), where that time went (`phase_s`, by
+        `PhaseClock`), the part of its simulations' time spent on other trials' candidates
+        sharing their batches (`shared_s`), and the control steps its simulations rolled out
+        (`sim_steps`)."""
+        self.clock.reset()
         steps = self.decide(obs, rng)
-        own, charged, compiled, simulated = 0.0, 0.0, 0.0, 0
+        own, waited, shared, compiled, simulated = 0.0, 0.0, 0.0, 0.0, 0
         answer = None
         while True:
             c0, t0 = jax_compile_seconds(), time.perf_counter()
@@ -414,9 +441,12 @@ class Planner:
                 c = jax_compile_seconds() - c0
                 own += time.perf_counter() - t0 - c
                 action, rec = done.value
+                self.clock.seconds["compile"] = compiled + c  # (the phases' own count is part of this)
                 rec.compile_s = compiled + c
-                rec.planning_s = max(0.0, own + charged)
-                rec.simulation_s = charged
+                rec.latency_s = rec.planning_s = max(0.0, own + waited)
+                rec.simulation_s = waited
+                rec.shared_s = shared
+                rec.phase_s = self.clock.rounded()
                 rec.sim_steps = simulated
                 return action, rec
             c = jax_compile_seconds() - c0
@@ -424,5 +454,7 @@ class Planner:
             compiled += c
             simulated += req.control_steps
             answer = yield req
-            charged += answer.seconds
+            waited += answer.seconds
+            shared += answer.shared_s
             compiled += answer.compile_s
+            self.clock.add(req.phase, answer.seconds)

@@ -28,7 +28,14 @@ class StepRecord:
     edge_first: int = 0  # the edge's first state executed (`Action.edge_first`: > 0 only with late_start)
     turn_deg: int = 0  # the edge executed turned about the base joint by this [deg] (`Action.turn`: turn_edges)
     compile_s: float = 0.0  # seconds of compilation during the decision, not in planning_s (`lmjx.runtime.compiletime`)
-    simulation_s: float = 0.0  # of planning_s, the seconds its simulations were charged (not in the records)
+    simulation_s: float = 0.0  # of planning_s, the seconds it waited for its simulations (not in the records)
+    # the wall time from the observation to the chosen action, compiling excluded (its own
+    # computation and the simulations it waited for): planning_s is the same figure
+    latency_s: float = 0.0
+    # where the decision's time went (`lmjx.planner.phases.PHASES`: offer, transit, simulate,
+    # rescore, execute, compile), wall seconds
+    phase_s: dict = field(default_factory=dict)
+    shared_s: float = 0.0  # of its simulations' seconds, those spent on other trials' candidates sharing its batches
     sim_steps: int = 0  # control steps its simulations rolled out (`Simulate.control_steps`: what the limit counts)
     # a decision that found no action: the edges over the target it tested, by why none was
     # offered (`TransitPlanner.actions`' tally, `NO_ACTION_KEYS`)
@@ -60,6 +67,9 @@ class StepRecord:
             "simulated": self.simulated,
             "distance_after_m": round(self.distance_after, 4),
             "planning_s": round(self.planning_s, 3),
+            "latency_s": round(self.latency_s, 4),
+            "phase_s": dict(self.phase_s),
+            **({"shared_s": round(self.shared_s, 4)} if self.shared_s >= 0.0005 else {}),
             "target_moved_m": None if np.isnan(self.target_moved_m) else round(self.target_moved_m, 4),
             "predicted_score_m": None if self.predicted_distance is None else round(self.predicted_distance, 4),
             "score_after_m": None if np.isnan(self.score_after) else round(self.score_after, 4),
@@ -88,7 +98,7 @@ ENDS = ("goal", "budget", "planning limit", "no edge over the target", "no feasi
 class TrialResult:
     success: bool
     actions: int
-    planning_s: float
+    planning_s: float  # the sum of its decisions' latencies (`StepRecord.latency_s`)
     execution_s: float
     final_distance: float
     steps: list[StepRecord] = field(default_factory=list)

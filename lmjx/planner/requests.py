@@ -1,5 +1,5 @@
-"""What a planner asks of whoever drives it (`Simulate`, `Execute`) and the simulator's
-answer (`Simulated`): one trial answered request by request (`edge_planner.drive`), or many
+"""What a planner asks of whoever drives it (`Simulate`, `Execute`) and the answers
+(`Simulated`, `Executed`): one trial answered request by request (`edge_planner.drive`), or many
 trials' requests answered together (`lmjx.evaluation.lockstep`).
 """
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lmjx.types import Action
+from lmjx.types import Action, Observation
 
 
 @dataclass
@@ -21,6 +21,7 @@ class Simulate:
     robot_q: np.ndarray  # (nj,)
     objects: np.ndarray  # (n, 7) or (S, n, 7)
     actions: list[Action]
+    phase: str = "simulate"  # the decision's phase it serves (`lmjx.planner.phases`): simulate or rescore
 
     def parts(self) -> list[tuple[np.ndarray, np.ndarray, list[Action]]]:
         """The request as `Simulator.simulate_many`'s requests, one per start state."""
@@ -40,12 +41,24 @@ class Simulate:
 
 @dataclass
 class Simulated:
-    """The answer: final object poses (len(actions), n, 7), the seconds charged for them and,
-    apart, the seconds of compilation they took (`lmjx.runtime.compiletime`; not in `seconds`)."""
+    """The answer: final object poses (len(actions), n, 7); the wall seconds the request
+    waited for them, less the compilation they took (`compile_s`, apart:
+    `lmjx.runtime.compiletime`); and of `seconds`, the part spent on other requests' rollouts
+    sharing the batch (`shared_s`: in proportion to the rollouts)."""
 
     objects: np.ndarray
     seconds: float
     compile_s: float = 0.0
+    shared_s: float = 0.0
+
+
+@dataclass
+class Executed:
+    """The answer to `Execute`: what the world's sensors report after the action, and the
+    wall seconds the execution took."""
+
+    observation: Observation
+    seconds: float
 
 
 @dataclass

@@ -63,6 +63,7 @@ from lmjx.planner.clearance import (
     scene_boxes,
 )
 from lmjx.planner.escape import JamEscapes
+from lmjx.planner.phases import PhaseClock
 from lmjx.planner.roadmap import Roadmap
 from lmjx.planner.timelaw import retime
 from lmjx.planner.turned import TurnedEdges
@@ -77,6 +78,7 @@ ACT_DEPTH = 0.005  # an edge acts on the target when the arm sweeps this deep in
 NO_ACTION_KEYS = ("tested", "start_blocked", "edge_unusable", "no_transit")
 MEMO_KEYS = 4  # per-decision caches (`_memo`): the latest this many keys
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
+SCREEN_AHEAD = 8192  # edges whose starts and states are tested at once on an accelerator (`lookahead`)
 LATE_TRIES = 4  # `late_start`: edges with a blocked start tried per action still wanted
 
 # (a call holds a median of about 40: a chunk of 256 cost 5.3 ms for 40 where 64 costs 1.1 ms)
@@ -189,8 +191,8 @@ class TransitPlanner(SceneChecks, JamEscapes):
         fixed = ~self.scene.movable
         if not (self.acting or fixed.any()):
             return np.full(len(edges), WHOLE)
-        qs = [bundle.edge(int(e), ("q",))["q"] for e in edges]
-        q_all = np.concatenate(qs).astype(np.float32)
+        states, lengths = bundle.states(edges, ("q",))
+        q_all = states["q"].astype(np.float32)
         # the target and the fixed obstacles only (a program of EDGE_BOXES boxes), exactly
         # where the lower bound leaves it in doubt (near the target, near a fixed obstacle)
         keep = np.concatenate([[0], np.nonzero(fixed)[0]])
@@ -205,23 +207,25 @@ class TransitPlanner(SceneChecks, JamEscapes):
             exact = self._edge_kernel.run(q_all[doubt])["box_clearance"][:, : len(keep)]
             rows = np.nonzero(doubt)[0]
             c[np.ix_(rows, keep)] = exact
-        lengths = np.array([len(q) for q in qs])
+        n = len(lengths)
         first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-        owner = np.repeat(np.arange(len(qs)), lengths)
+        owner = np.repeat(np.arange(n), lengths)
         k = np.arange(len(owner)) - first[owner]  # each state's index within its edge
-        begin = np.zeros(len(qs), int) if first_state is None else np.asarray(first_state, int)
+        begin = np.zeros(n, int) if first_state is None else np.asarray(first_state, int)
         counted = k >= begin[owner]
         prefix = cut_at_fixed(c[:, fixed].min(axis=1) if fixed.any() else None, owner, k, lengths, counted)
         if self.acting:
             inside = counted & (k < prefix[owner])
-            nearest = np.full(len(qs), np.inf)
+            nearest = np.full(n, np.inf)
             np.minimum.at(nearest, owner[inside], c[inside, 0])
             prefix[nearest > -ACT_DEPTH] = 0
         prefix[prefix - begin < MIN_EDGE_STATES] = 0
         if isinstance(bundle, TurnedEdges):  # the base and the table do not turn: check what is executed
-            for j in np.nonzero((prefix > 0) & (bundle.delta[np.asarray(edges, np.int64)] != 0))[0]:
-                if self.colliding_batch(qs[j][begin[j] : prefix[j]].astype(np.float64)).any():
-                    prefix[j] = 0
+            turned = (prefix > 0) & (bundle.delta[np.asarray(edges, np.int64)] != 0)
+            executed = turned[owner] & counted & (k < prefix[owner])
+            if executed.any():  # every executed state of every turned edge in one batch
+                hit = self.colliding_batch(q_all[executed].astype(np.float64))
+                prefix[np.unique(owner[executed][hit])] = 0
         return prefix
 
     def late_starts(self, bundle: Bundle, edges: np.ndarray) -> np.ndarray:
@@ -240,10 +244,8 @@ class TransitPlanner(SceneChecks, JamEscapes):
         if not by_fixed.any():
             return out
         which = np.nonzero(by_fixed)[0]
-        qs = [bundle.edge(int(edges[i]), ("q",))["q"].astype(np.float64) for i in which]
-        q_all = np.concatenate(qs)
-        free = ~self.blocked(q_all)
-        lengths = np.array([len(q) for q in qs])
+        states, lengths = bundle.states(np.asarray(edges)[which], ("q",))
+        free = ~self.blocked(states["q"].astype(np.float64))
         ends = np.cumsum(lengths)
         for i, a, b in zip(which, ends - lengths, ends, strict=True):
             hits = np.nonzero(free[a:b])[0]
@@ -287,6 +289,7 @@ class TransitPlanner(SceneChecks, JamEscapes):
         want: int,
         came_from: np.ndarray | None = None,
         trail: np.ndarray | None = None,
+        clock: PhaseClock | None = None,
     ) -> list[Action]:
         """The first `want` feasible actions among `edges`, in their order (fewer if there are
         not that many).  Edges are taken in blocks (whatever the block, the same first
@@ -302,7 +305,9 @@ class TransitPlanner(SceneChecks, JamEscapes):
         there is offered after the `escape` ("escape+" routes), in its place in the order.
         With `late_start`, where all of `edges` give fewer than `want` actions, a second pass
         enters edges whose start was blocked at their `late_starts` (at most LATE_TRIES of
-        them, in order, per action still wanted); their actions come after the others."""
+        them, in order, per action still wanted); their actions come after the others.
+        `clock`: where the screening ("offer") and the transits ("transit") are timed."""
+        clock = clock or PhaseClock()
         out: list[Action] = []
         tally = dict.fromkeys(NO_ACTION_KEYS, 0)  # why edges were not offered (`last_tally`)
         self.last_tally = tally
@@ -316,11 +321,13 @@ class TransitPlanner(SceneChecks, JamEscapes):
                 return back, inside and back is None
 
             key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self.scene_version)
-            back, jammed = self._memo("_retreat", key, way_back)
+            with clock.phase("transit"):
+                back, jammed = self._memo("_retreat", key, way_back)
             if back is not None:
                 lead, q_now = back, back[-1]  # transits are planned from the retreat's end
         block = max(want, MIN_BLOCK)
         blocked_starts: list[np.ndarray] = []  # for `late_start`'s second pass
+        screened = _Screened(self, bundle, edges, self.lookahead(block))
         for late in (False, True):
             if late and not (self.late_start and len(out) < want and blocked_starts):
                 break
@@ -329,45 +336,54 @@ class TransitPlanner(SceneChecks, JamEscapes):
             i = 0
             while len(out) < want and i < len(pool):
                 part = np.asarray(pool[i : i + block])
-                i += len(part)
-                if not late:
-                    tally["tested"] += len(part)
-                    # the cheapest test first: most edges over a target start where an object stands
-                    free = ~self.blocked(bundle.q_start[part].astype(np.float64))
-                    tally["start_blocked"] += int(len(part) - free.sum())
-                    if self.late_start:
-                        blocked_starts.append(part[~free])
-                    begin = np.zeros(len(part), int)
-                else:  # too few actions from clear starts: edges entered after a start in a fixed obstacle's margin
-                    begin = self.late_starts(bundle, part)
-                    free = begin > 0
-                    tally["start_blocked"] -= int(free.sum())
-                part, begin = part[free], begin[free]
-                prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
-                tally["edge_unusable"] += int((prefix <= 0).sum())
-                part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
+                with clock.phase("offer"):
+                    if not late:
+                        tally["tested"] += len(part)
+                        # the cheapest test first: most edges over a target start where an object stands
+                        free, prefix = screened.take(i, i + len(part))
+                        tally["start_blocked"] += int(len(part) - free.sum())
+                        if self.late_start:
+                            blocked_starts.append(part[~free])
+                        begin = np.zeros(len(part), int)
+                        part, begin = part[free], begin[free]
+                    else:  # too few actions from clear starts: edges entered after a start in a fixed obstacle's margin
+                        begin = self.late_starts(bundle, part)
+                        free = begin > 0
+                        tally["start_blocked"] -= int(free.sum())
+                        part, begin = part[free], begin[free]
+                        prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
+                    i += len(free)
+                    tally["edge_unusable"] += int((prefix <= 0).sum())
+                    part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
                 if not len(part):
                     continue
-                starts = bundle.q_start[part].astype(np.float64)
-                for j in np.nonzero(begin)[0]:
-                    starts[j] = bundle.edge(int(part[j]), ("q",))["q"][begin[j]]
-                ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
-                stuck = [j for j in range(len(part)) if j not in ways]
-                if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
-                    esc = self._memo("_escape", (q_now.tobytes(), self.scene_version), lambda: self.escape(q_now))
-                    if esc is not None:
-                        for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc, trail).items():
-                            ways[j] = ("escape+" + route, transit)
-                ok = sorted(ways)
-                tally["no_transit"] += len(part) - len(ok)
-                bundle.prefetch(part[ok][: want - len(out)], ("q", "qd"))  # a lazily read map: at once
-                for j in ok:
-                    route, transit = ways[j]
-                    out.append(_action(bundle, int(part[j]), q_arm, transit, route, int(prefix[j]), int(begin[j])))
-                    if len(out) == want:
-                        break
+                with clock.phase("transit"):
+                    starts = bundle.q_start[part].astype(np.float64)
+                    late_ones = np.nonzero(begin)[0]
+                    if len(late_ones):
+                        q_late, lengths = bundle.states(part[late_ones], ("q",))
+                        firsts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+                        starts[late_ones] = q_late["q"][firsts + begin[late_ones]]
+                    ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
+                    stuck = [j for j in range(len(part)) if j not in ways]
+                    if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
+                        esc = self._memo("_escape", (q_now.tobytes(), self.scene_version), lambda: self.escape(q_now))
+                        if esc is not None:
+                            for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc,
+                                                                  trail).items():  # fmt: skip
+                                ways[j] = ("escape+" + route, transit)
+                    ok = sorted(ways)
+                    tally["no_transit"] += len(part) - len(ok)
+                    take = ok[: want - len(out)]
+                    out += _actions(bundle, part[take], q_arm, [ways[j] for j in take], prefix[take], begin[take])
                 block = max(MIN_BLOCK, 2 * (want - len(out)))
         return out
+
+    def lookahead(self, block: int) -> int:
+        """Edges whose starts and edges `actions` screens at once: a block at a time on the
+        host (the checks cost per configuration), many blocks where the checks run on an
+        accelerator (they cost per call: `SCREEN_AHEAD` edges at a time)."""
+        return block if self._host_bounds or not self.batched else max(block, SCREEN_AHEAD)
 
     def _ways(
         self,
@@ -475,6 +491,33 @@ class TransitPlanner(SceneChecks, JamEscapes):
         return out
 
 
+class _Screened:
+    """`TransitPlanner.actions`' first tests of its candidates, made ahead of the blocks that
+    use them (`lookahead` edges at a time): whether each edge's start is clear of the scene
+    (`blocked`), and for those that are, how many of its states an action executes
+    (`edge_prefixes`).  Each edge's figures are its own: screening more at once changes
+    nothing but the number of calls."""
+
+    def __init__(self, tp: TransitPlanner, bundle: Bundle, edges: np.ndarray, lookahead: int) -> None:
+        self.tp, self.bundle, self.edges, self.lookahead = tp, bundle, np.asarray(edges), lookahead
+        self.done = 0  # edges[:done] are screened
+        self.free = np.zeros(len(self.edges), bool)
+        self.prefix = np.zeros(len(self.edges), np.int64)
+
+    def take(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """(free start, prefix of the free ones) of edges[a:b] (screened first where they are not yet)."""
+        if b > self.done:
+            stop = min(len(self.edges), max(b, self.done + self.lookahead))
+            part = self.edges[self.done : stop]
+            free = ~self.tp.blocked(self.bundle.q_start[part].astype(np.float64))
+            self.free[self.done : stop] = free
+            if free.any():
+                self.prefix[self.done : stop][free] = self.tp.edge_prefixes(self.bundle, part[free])
+            self.done = stop
+        free = self.free[a:b]
+        return free, self.prefix[a:b][free]
+
+
 def transit_velocities(q_from: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """The joint velocities (T, nj) the servos are given with joint targets (T, nj) that lead
     on from q_from at CONTROL_DT: differences of q_from then targets (central; the last
@@ -482,31 +525,41 @@ def transit_velocities(q_from: np.ndarray, targets: np.ndarray) -> np.ndarray:
     return np.gradient(np.concatenate([np.asarray(q_from)[None], targets]), CONTROL_DT, axis=0)[1:]
 
 
-def _action(
+def _actions(
     bundle: Bundle,
-    edge: int,
+    edges: np.ndarray,
     q_now: np.ndarray,
-    transit: np.ndarray,
-    route: str,
-    states_used: int = WHOLE,
-    first: int = 0,
-) -> Action:
-    states = bundle.edge(edge, ("q", "qd"))
-    transit = retime(q_now, transit, CONTROL_DT)  # at rest at each sharp corner
-    q_edge = states["q"][first:states_used].astype(np.float64)
-    qd_edge = states["qd"][first:states_used].astype(np.float64)
-    qd_transit = transit_velocities(q_now, transit)
-    turn = 0.0
-    if isinstance(bundle, TurnedEdges):
-        edge, turn = bundle.source(edge)  # the map's edge and its turn
-    return Action(
-        edge=edge,
-        q=np.concatenate([transit, q_edge]),
-        qd=np.concatenate([qd_transit, qd_edge]),
-        transit_steps=len(transit),
-        via_park=route != "direct",
-        route=route,
-        edge_states=len(q_edge),
-        edge_first=first,
-        turn=turn,
-    )
+    ways: list[tuple[str, np.ndarray]],
+    states_used: np.ndarray,
+    first: np.ndarray,
+) -> list[Action]:
+    """The actions of `edges` (their states read at once): each edge's transit (route, joint
+    targets), retimed, then its states first[i] .. states_used[i] - 1."""
+    if not len(edges):
+        return []
+    states, lengths = bundle.states(edges, ("q", "qd"))
+    ends = np.cumsum(lengths)
+    out = []
+    for i, (route, transit) in enumerate(ways):
+        a = int(ends[i] - lengths[i])
+        used = slice(a + int(first[i]), a + min(int(states_used[i]), int(lengths[i])))
+        transit = retime(q_now, transit, CONTROL_DT)  # at rest at each sharp corner
+        q_edge = states["q"][used].astype(np.float64)
+        qd_edge = states["qd"][used].astype(np.float64)
+        edge, turn = int(edges[i]), 0.0
+        if isinstance(bundle, TurnedEdges):
+            edge, turn = bundle.source(edge)  # the map's edge and its turn
+        out.append(
+            Action(
+                edge=edge,
+                q=np.concatenate([transit, q_edge]),
+                qd=np.concatenate([transit_velocities(q_now, transit), qd_edge]),
+                transit_steps=len(transit),
+                via_park=route != "direct",
+                route=route,
+                edge_states=len(q_edge),
+                edge_first=int(first[i]),
+                turn=turn,
+            )
+        )
+    return out

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.edges.bundle import Bundle, EdgeStates
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
@@ -136,6 +136,20 @@ class TurnedEdges:
             out["p"] = p
         return out
 
+    def states(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> EdgeStates:
+        """`Bundle.states` of view edges `edges`: their map edges' states read at once, turned."""
+        edges = np.asarray(edges, np.int64)
+        out, lengths = self.base.states(self.ids[edges], names)
+        d = np.repeat(self.delta[edges], lengths)
+        if "q" in out:
+            q = out["q"]
+            q[:, self.axis.joint] += d.astype(q.dtype)
+        if "p" in out and d.any():
+            p = out["p"]
+            turned = d != 0.0
+            p[turned, :2] = turn_xy(p[turned, :2].astype(np.float64), self.axis.sign * d[turned], self.axis.anchor)
+        return out, lengths
+
     def prefetch(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> None:
         self.base.prefetch(np.unique(self.ids[np.asarray(edges, np.int64)]), names)
 
@@ -145,7 +159,8 @@ class _Pool:
     """What `turned_over_target` needs of a bundle, computed once per bundle."""
 
     axis: TurnAxis
-    radius: np.ndarray  # (K,) each index entry's cell: distance from the axis
+    radius: np.ndarray  # (K,) each index entry's cell: distance from the axis (increasing: the
+    # entries sorted by it, so that a ring about the axis is one slice)
     angle: np.ndarray  # (K,) ... and polar angle about it [rad]
     edges: np.ndarray  # (K,) each index entry's edge
     low: np.ndarray  # (E,) each edge's lowest base-joint angle over its states
@@ -171,11 +186,13 @@ def _pool(bundle: Bundle, reach: ReachResult, robot: Robot, failure: Failure) ->
         cy = reach.ys[cells // nx] - axis.anchor[1]
         column = _column(bundle.q, axis.joint)
         starts = np.asarray(bundle.offset, np.int64)
+        radius = np.hypot(cx, cy)
+        by_radius = np.argsort(radius, kind="stable")
         pool = _Pool(
             axis=axis,
-            radius=np.hypot(cx, cy),
-            angle=np.arctan2(cy, cx),
-            edges=np.asarray(bundle.index_edges, np.int64),
+            radius=radius[by_radius],
+            angle=np.arctan2(cy, cx)[by_radius],
+            edges=np.asarray(bundle.index_edges, np.int64)[by_radius],
             low=np.minimum.reduceat(column, starts) if len(starts) else np.zeros(0),
             high=np.maximum.reduceat(column, starts) if len(starts) else np.zeros(0),
             start_xy=_rows(bundle.p, starts)[:, :2],
@@ -234,9 +251,13 @@ def turned_over_target(
     ax = pool.axis
     t = np.asarray(target_xy, np.float64) - ax.anchor
     r_t, phi_t = float(np.hypot(*t)), float(np.arctan2(t[1], t[0]))
-    near = np.abs(pool.radius - r_t) <= half + margin + reach.config.cell / 2
-    e = pool.edges[near]
-    world = (phi_t - pool.angle[near] + math.pi) % (2 * math.pi) - math.pi  # the turn seen from above
+    ring = half + margin + reach.config.cell / 2
+    # the entries whose cell lies within `ring` of the target's distance from the axis: one slice
+    lo, hi = np.searchsorted(pool.radius, [r_t - ring - 1e-9, r_t + ring + 1e-9])
+    near = slice(int(lo), int(hi))
+    keep_near = np.abs(pool.radius[near] - r_t) <= ring  # (the test itself, on the slice)
+    e = pool.edges[near][keep_near]
+    world = (phi_t - pool.angle[near][keep_near] + math.pi) % (2 * math.pi) - math.pi  # the turn seen from above
     steps = np.round(np.degrees(ax.sign * world) / TURN_STEP_DEG).astype(np.int64)  # in the joint's sense
     turn = np.radians(steps * TURN_STEP_DEG)
     ok = (steps != 0) & (pool.low[e] + turn >= pool.lower) & (pool.high[e] + turn <= pool.upper)
