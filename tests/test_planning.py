@@ -341,10 +341,10 @@ def test_batched_transits_equal_c_mujoco_transits(robot, small_map):
 
 
 def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
-    """Trials run together (lmjx.evaluation.lockstep, as lmjx evaluate runs them: one TransitPlanner per
-    map, each trial its own layout) decide as they do alone.  Lazy on the CPU builds its tries
-    one at a time, waiting for each simulation while the other trials set their scenes: each
-    try must still be checked against its own trial's scene."""
+    """Trials run together (lmjx.evaluation.lockstep, as lmjx evaluate runs them: each trial on a
+    thread of its own with its own TransitPlanner and layout) decide as they do alone.  Lazy on
+    the CPU builds its tries one at a time, waiting for each simulation while the other trials
+    compute: each try must still be checked against its own trial's scene."""
     from lmjx.evaluation.lockstep import run_lockstep
     from lmjx.evaluation.trial import make_simulator
     from lmjx.planner.transit import TransitPlanner
@@ -356,7 +356,8 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
 
     def record(res) -> dict:  # the trial and each of its actions, wall times (planning, compiling) left out
         wall = {"planning_s": 0, "compile_s": 0}
-        return res.summary() | wall | {"steps": [s | wall for s in res.action_records()]}
+        times = wall | {"latency_s": 0, "phase_s": 0, "shared_s": 0}
+        return res.summary() | wall | {"steps": [s | times for s in res.action_records()]}
 
     alone = [
         record(run_trial(setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim)))
@@ -365,9 +366,9 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     lazy_tries = [x["simulated"] for (a, _), r in zip(runs, alone, strict=True) if a == "lazy" for x in r["steps"]]
     assert max(lazy_tries) > 1  # Lazy waited for a simulation between tries (what could go wrong)
     for window in (None, 2):  # all at once (a GPU's batches), or two in flight (the CPU's cores)
-        shared = TransitPlanner(robot, m.failure)
         setups = [
-            setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim, transits=shared)
+            setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim,
+                        transits=TransitPlanner(robot, m.failure))  # fmt: skip
             for c, (_, seed) in zip(cfgs, runs, strict=True)
         ]
         together: dict[int, dict] = {}

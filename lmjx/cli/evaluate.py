@@ -76,10 +76,27 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="add to an --out of other conditions (commit, maps, ...); report.md says so",
     )
+    p.add_argument(
+        "--processes",
+        type=_processes,
+        metavar="N",
+        help="run the trials in N processes, process k simulating on GPU k (default: one per GPU where the "
+        "planner simulates on GPUs, else one); the records are those one process makes",
+    )
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)
     p.set_defaults(run=cmd_evaluate)
     return p
+
+
+def _processes(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= 64:
+        raise argparse.ArgumentTypeError(f"'{text}': give a whole number of processes from 1 to 64")
+    return n
 
 
 def _split(text: str, cast: Callable = str) -> tuple:
@@ -177,7 +194,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed)  # a refusal: one line
         if simulates:
             print(f"lmjx evaluate: simulator {sim_name} ({why})", file=sys.stderr)
-        results = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr), opened=opened)
+        results = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr), opened=opened,
+                           processes=args.processes)  # fmt: skip
     except LmjxError:
         if made and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # no folder left empty by a refusal

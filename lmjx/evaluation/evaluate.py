@@ -20,16 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from lmjx.errors import ConfigError
-from lmjx.evaluation.lockstep import run_lockstep
-from lmjx.evaluation.provenance import new_run, trial_provenance
+from lmjx.evaluation.provenance import new_run
 from lmjx.evaluation.results import Results, check_conditions, provenance_lines, read_results, write_results
 from lmjx.evaluation.stats import rate_text, wilson
-from lmjx.evaluation.trial import make_simulator, setup_trial
+from lmjx.evaluation.workers import run_in_processes, run_trials
 from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.robot import Robot
-from lmjx.planner.records import TrialResult
-from lmjx.planner.transit import TransitPlanner
-from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
 from lmjx.runtime.progress import Progress
 from lmjx.sim.scenarios import TASK_SETS, Task, resolve_task, scenario
@@ -130,6 +126,7 @@ def evaluate(
     command: str | None = None,
     allow_mixed: bool = False,
     opened: tuple[Results, dict] | None = None,
+    processes: int | None = None,
 ) -> Results:
     """Run every missing trial; return the results (also in out/results.json): every trial's
     record and the runs that made them.  `say` is told in one line when trials of an earlier
@@ -137,10 +134,12 @@ def evaluate(
     held from a run under other conditions are refused before anything runs (`open_run`;
     `opened`: what it returned, where the caller called it) unless `allow_mixed`.
 
-    The trials of a scenario run together (`lmjx.evaluation.lockstep`): on a GPU their candidates are
-    simulated in shared batches, and executions run on all cores; on the CPU as many trials
-    as cores are in flight at once.  Each trial makes the decisions it would make alone.  A
-    record is written as soon as its trial ends."""
+    The trials of a scenario run together (`lmjx.evaluation.lockstep`): side by side, each on
+    a thread of its own; on a GPU their candidates are simulated in shared batches; on the CPU
+    as many trials as cores are in flight at once.  `processes`: the trials split across that
+    many processes (`lmjx.evaluation.workers`; default: one per GPU where the planner simulates
+    on GPUs, else one).  Each trial makes the decisions it would make alone.  A record is
+    written as soon as its trial ends."""
     results, run = opened or open_run(robot, maps, config, out, command, allow_mixed)
     results_path = out / "results.json"
     out.mkdir(parents=True, exist_ok=True)
@@ -159,65 +158,35 @@ def evaluate(
     if say is not None and len(todo) < len(rank) and done:
         say(f"resuming: {len(rank) - len(todo)} of {len(rank)} trials already in {results_path}")
     bar = Progress(total=len(todo), desc="trials", enabled=progress, unit="trial")
-    threads = usable_cores()
-    for s in sorted({k[1] for k in todo}):
-        group = [k for k in todo if k[1] == s]
-        task = config.task(s, robot)  # once per scenario: its trials share it and the simulator
-        sim = (
-            make_simulator(robot, task, config.backend, servo=config.planner.servo)
-            if any(k[2] != "random" for k in group)
-            else None
-        )
-        batched = bool(sim is not None and sim.prefers_batches)
-        transits = {f: TransitPlanner(robot, maps[f].failure, batched=batched) for f in {k[0] for k in group}}
-        trials = []
-        for f, _, a, seed in group:
-            pc = PlannerConfig(**{**config.planner.__dict__, "asm": a})
-            setup = setup_trial(robot, maps[f], task, pc, seed, sim if a != "random" else None, transits[f])
-            trials.append((setup.planner.trial(setup.world, setup.layout, setup.planner_seed), setup.world))
-        bar.set_description(f"scenario {s}: {len(group)} trials together")
 
-        def finished(i: int, res: TrialResult, group: list = group) -> None:
-            f, s_, a, seed = group[i]
-            records.append(
-                {
-                    "robot": robot.key,
-                    "tasks": config.tasks,
-                    "failure": f,
-                    "scenario": s_,
-                    "asm": a,
-                    "seed": seed,
-                    "success": res.success,
-                    "actions": res.actions,
-                    "planning_s": round(res.planning_s, 3),
-                    "compile_s": round(res.compile_s, 3),  # not in planning_s (lmjx.runtime.compiletime)
-                    "execution_s": round(res.execution_s, 3),
-                    "sim_steps": res.sim_steps,  # the planning limit's count (provenance: planner.max_sim_steps)
-                    "final_distance_m": round(res.final_distance, 4),
-                    "end": res.reason,
-                    "stopped": res.stopped,
-                    "sim": config.backend if a != "random" else "none",
-                    "candidates": config.planner.greedy_candidates if a == "greedy" else None,
-                    "asm_settings": config.planner.settings(a),
-                    "steps": res.action_records(),
-                    # the decision that found no action, where one ended the trial: why (`StepRecord.no_action`)
-                    **({"no_action": res.steps[-1].no_action} if res.steps and res.steps[-1].no_action else {}),
-                    "run": run["id"],  # (its entry in the file's `runs`)
-                    "provenance": trial_provenance(run, f, a),
-                }
-            )
-            if run not in results.runs:
-                results.runs.append(run)
-            run["trials_run"] += 1
-            records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))
-            write_results(results_path, results)
-            bar.update(1)
+    def keep(record: dict) -> None:  # a trial's record, written as soon as it ends
+        records.append(record)
+        if run not in results.runs:
+            results.runs.append(run)
+        run["trials_run"] += 1
+        records.sort(key=lambda r: rank.get((r["failure"], r["scenario"], r["asm"], r["seed"]), len(rank)))
+        write_results(results_path, results)
+        bar.update(1)
 
-        # a GPU answers every trial's candidates in one batch; C MuJoCo gains nothing from
-        # more trials in flight than cores, and a stopped run keeps the trials that ended
-        run_lockstep(trials, sim, finished, threads=threads, window=None if batched else threads)
+    n = min(processes or default_processes(config.backend), max(1, len(todo)))
+    if n > 1:
+        bar.set_description(f"{len(todo)} trials in {n} processes")
+        run_in_processes(robot, maps, config, run, todo, n, keep)
+    else:
+        run_trials(robot, maps, config, run, todo, keep,
+                   on_group=lambda s, k: bar.set_description(f"scenario {s}: {k} trials together"))  # fmt: skip
     bar.close()
     return results
+
+
+def default_processes(backend: str) -> int:
+    """Processes an evaluation runs its trials in by default: one per GPU where the planner
+    simulates on GPUs (MuJoCo Warp's count of CUDA devices), else one."""
+    if backend != "gpu":
+        return 1
+    import warp as wp
+
+    return max(1, wp.get_cuda_device_count())
 
 
 def summarize(records: list[dict]) -> list[dict]:

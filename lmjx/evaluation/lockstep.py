@@ -1,27 +1,32 @@
-"""Many trials at once: their planners' requests answered together.
+"""Many trials at once: their host work side by side, their simulations answered together.
 
 Each trial is a planner generator (`Planner.trial`) that yields `Simulate` and `Execute`
-requests.  `run_lockstep` advances every trial of a group to its next request, then answers
-all the simulation requests with one `simulate_many` call (on a GPU: one batch of every
-trial's candidates) and all the executions on a pool of threads (C MuJoCo releases the
-interpreter lock while it steps).  A trial's decisions do not depend on which other trials
-share its batches: this only changes how fast they are made.
+requests.  `run_lockstep` runs every trial in flight on a thread of its own: its decisions'
+host work (the offer, the transits, the scoring: numpy, JAX and C MuJoCo, which release the
+interpreter lock for their work) and its executions in the "real" world overlap with the
+other trials'.  With a simulator that prefers batches (MuJoCo Warp on a GPU) a trial's
+`Simulate` waits while the others compute: once no trial is computing (every one waits for a
+simulation or has ended), or the waiting rollouts fill the simulator's largest batch, all of
+them are simulated in one `simulate_many` call.  A simulator that does not prefer batches (C
+MuJoCo, which uses every core itself) is called per request, one request at a time.  A
+trial's decisions do not depend on which other trials share its batches or run beside it
+(each has its own planner state: `Planner`, `TransitPlanner`): this only changes how fast
+they are made.
 
-A `window` keeps at most that many trials in flight, the next starting as one ends: with a
-simulator that does not prefer batches (C MuJoCo) nothing is gained by advancing every trial
-together, and a run stopped part-way keeps the trials that ended (each is recorded as it
-ends) instead of losing a whole group that had not finished.
+A `window` keeps at most that many trials in flight, the next starting as one ends, so a run
+stopped part-way keeps the trials that ended (each is recorded as it ends, in the calling
+thread, by `on_done`).
 
 Planning time: each decision waited for the whole batch its candidates were simulated in,
 and its latency counts the batch's wall seconds; the part of them spent on other trials'
-candidates (in proportion to the rollouts) is recorded apart (`StepRecord.shared_s`).  A
-simulator that does not prefer batches is called per request, each its own call.  The seconds
-a batch spent compiling (`lmjx.runtime.compiletime`: the GPU's graphs and kernels on first use)
-are kept out of planning time.
+candidates (in proportion to the rollouts) is recorded apart (`StepRecord.shared_s`).  The
+seconds a batch spent compiling (`lmjx.runtime.compiletime`: the GPU's graphs and kernels on
+first use) are kept out of planning time.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Generator
 from concurrent.futures import ThreadPoolExecutor
@@ -35,6 +40,39 @@ from lmjx.planner.requests import Execute, Simulate, Simulated
 from lmjx.runtime.compiletime import compile_seconds
 from lmjx.types import Executor, Simulator
 
+# waiting rollouts that are simulated at once, computing trials or not (or a simulator's `full_batch`)
+FULL_BATCH = 4096
+
+
+class _StopError(Exception):
+    """The run is stopping (another trial failed, or the caller was interrupted)."""
+
+
+class _Board:
+    """What the trials in flight are doing: how many compute, the simulations waiting, the
+    trials ended (results or errors), under one condition."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.computing = 0
+        self.waiting: dict[int, Simulate] = {}
+        self.answers: dict[int, Simulated] = {}
+        self.ended: list[tuple[int, TrialResult | BaseException]] = []
+        self.stopping = False
+
+    def simulate(self, i: int, req: Simulate) -> Simulated:
+        """Trial i's simulation, answered with the others' (blocks until then)."""
+        with self.cond:
+            self.waiting[i] = req
+            self.computing -= 1
+            self.cond.notify_all()
+            while i not in self.answers and not self.stopping:
+                self.cond.wait()
+            if self.stopping:
+                raise _StopError
+            self.computing += 1
+            return self.answers.pop(i)
+
 
 def run_lockstep(
     trials: list[tuple[Generator[Any, Any, TrialResult], Executor]],
@@ -43,35 +81,92 @@ def run_lockstep(
     threads: int = 1,
     window: int | None = None,
 ) -> None:
-    """Drive `trials` (generator, executor) to their ends; `on_done(index, result)` is
-    called as each finishes; at most `window` (None: all) are in flight at once, in order."""
-    width = len(trials) if window is None else max(1, window)
-    answers: dict[int, Any] = {i: None for i in range(min(width, len(trials)))}
-    waiting = iter(range(len(answers), len(trials)))
-    with ThreadPoolExecutor(max(1, threads)) as pool:
-        while answers:
-            sims: dict[int, Simulate] = {}
-            execs: dict[int, Execute] = {}
-            answers_next: dict[int, Any] = {}
-            for i, answer in answers.items():
+    """Drive `trials` (generator, executor) to their ends; `on_done(index, result)` is called
+    in this thread as each finishes; at most `window` (None: all) are in flight at once, in
+    order.  `threads` is kept for callers: every trial in flight has a thread."""
+    if not trials:
+        return
+    batched = bool(sim is not None and sim.prefers_batches)
+    width = len(trials) if window is None else max(1, min(window, len(trials)))
+    full = int(getattr(sim, "full_batch", FULL_BATCH))
+    board = _Board()
+    sim_lock = threading.Lock()  # a simulator that does not prefer batches: one request at a time
+
+    def one(i: int) -> None:
+        gen, executor = trials[i]
+        answer: Any = None
+        try:
+            while True:
                 try:
-                    req = trials[i][0].send(answer)
+                    req = gen.send(answer)
                 except StopIteration as done:
-                    on_done(i, done.value)
-                    nxt = next(waiting, None)
-                    if nxt is not None:  # starts with the next round
-                        answers_next[nxt] = None
-                    continue
-                if isinstance(req, Simulate):
-                    sims[i] = req
+                    result: TrialResult | BaseException = done.value
+                    break
+                if board.stopping:
+                    raise _StopError
+                if isinstance(req, Execute):
+                    answer = execute_request(executor, req)
+                elif batched:
+                    answer = board.simulate(i, req)
                 else:
-                    execs[i] = req
-            answers = answers_next
-            futures = {i: pool.submit(execute_request, trials[i][1], req) for i, req in execs.items()}
-            if sims:
-                assert sim is not None, "a trial asked for a simulation but no simulator was given"
-                answers.update(_simulate(sim, sims))
-            answers.update({i: f.result() for i, f in futures.items()})
+                    assert sim is not None, "a trial asked for a simulation but no simulator was given"
+                    with sim_lock:
+                        answer = simulate_request(sim, req)
+        except _StopError:
+            gen.close()
+            result = _StopError()
+        except BaseException as e:  # (given to the calling thread, which raises it)
+            result = e
+        with board.cond:
+            board.computing -= 1
+            board.ended.append((i, result))
+            board.cond.notify_all()
+
+    order = iter(range(len(trials)))
+    in_flight = 0
+    with ThreadPoolExecutor(width, thread_name_prefix="lmjx-trial") as pool:
+
+        def start_next() -> bool:
+            nonlocal in_flight
+            i = next(order, None)
+            if i is None:
+                return False
+            with board.cond:
+                board.computing += 1
+            in_flight += 1
+            pool.submit(one, i)
+            return True
+
+        for _ in range(width):
+            start_next()
+        try:
+            while in_flight:
+                batch: dict[int, Simulate] = {}
+                with board.cond:
+                    while not board.ended:
+                        rollouts = sum(r.rollouts for r in board.waiting.values())
+                        if board.waiting and (board.computing == 0 or rollouts >= full):
+                            batch, board.waiting = board.waiting, {}
+                            break
+                        board.cond.wait(timeout=1.0)
+                    ended, board.ended = board.ended, []
+                for i, result in ended:
+                    in_flight -= 1
+                    if isinstance(result, BaseException):
+                        raise result
+                    on_done(i, result)
+                    start_next()
+                if batch:
+                    assert sim is not None
+                    answers = _simulate(sim, batch)
+                    with board.cond:
+                        board.answers.update(answers)
+                        board.cond.notify_all()
+        except BaseException:
+            with board.cond:  # the trials in flight stop at their next request
+                board.stopping = True
+                board.cond.notify_all()
+            raise
 
 
 def _simulate(sim: Simulator, sims: dict[int, Simulate]) -> dict[int, Simulated]:

@@ -27,6 +27,9 @@ over).  A goal the roadmap does not reach is not offered.  Nothing here chooses 
 
 from __future__ import annotations
 
+import threading
+import weakref
+from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any, Protocol
 
@@ -113,27 +116,59 @@ class TransitChecks(Protocol):
     def segment_steps(self, dq: np.ndarray, slow: np.ndarray | bool = False) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-class Roadmap:
-    """The roadmap of one map (its edge starts) for one `TransitPlanner` (its failure, its
-    scene)."""
+@dataclass(frozen=True)
+class RoadmapGraph:
+    """A roadmap's nodes and links (no scene): the same for every transit planner of one map
+    and failure, made once (`roadmap_graph`) and shared."""
 
-    def __init__(self, transits: TransitChecks, q_start: np.ndarray) -> None:
-        self.t = transits
+    q: np.ndarray  # (m, nj) the nodes: edge starts free of the table and the arm, the park pose
+    speed: np.ndarray  # (nj,) the transits' joint speeds
+    links: np.ndarray  # (L, 2) undirected links (lo, hi)
+    link_time: np.ndarray  # (L,) their transit times
+
+
+_GRAPHS: dict[tuple, tuple[weakref.ref, RoadmapGraph]] = {}
+_GRAPHS_LOCK = threading.Lock()
+
+
+def roadmap_graph(transits: TransitChecks, q_start: np.ndarray) -> RoadmapGraph:
+    """The roadmap graph over the edge starts `q_start` (an array a map holds: kept while it
+    lives) for the failure of `transits` (its park pose, speeds, and table and arm checks)."""
+    # (the checks' kind too: C MuJoCo's and the clearance kernel's are tested to agree, not to the last bit)
+    key = (id(q_start), transits.park.tobytes(), np.asarray(transits.speed).tobytes(),
+           bool(getattr(transits, "batched", False)))  # fmt: skip
+    with _GRAPHS_LOCK:
+        held = _GRAPHS.get(key)
+        if held is not None and held[0]() is q_start:
+            return held[1]
         rng = np.random.default_rng(SEED)
         pick = np.sort(rng.choice(len(q_start), size=min(NODES, len(q_start)), replace=False))
         q = np.concatenate([q_start[pick].astype(np.float64), transits.park[None]])
         q = q[~transits.colliding_batch(q)]
-        self.q = q
-        self.speed = np.asarray(transits.speed, np.float64)
-        idx, dist = nearest(q, q, K, self.speed)
+        speed = np.asarray(transits.speed, np.float64)
+        idx, dist = nearest(q, q, K, speed)
         a = np.repeat(np.arange(len(q)), idx.shape[1])
         b = idx.ravel()
         keep = np.isfinite(dist.ravel())
         lo, hi = np.minimum(a, b)[keep], np.maximum(a, b)[keep]
         pairs, first = np.unique(np.stack([lo, hi], 1), axis=0, return_index=True)
-        self.links, self.link_time = _bridged(q, pairs, dist.ravel()[keep][first], self.speed)
+        links, link_time = _bridged(q, pairs, dist.ravel()[keep][first], speed)
+        graph = RoadmapGraph(q, speed, links, link_time)
+        _GRAPHS[key] = (weakref.ref(q_start, lambda _: _GRAPHS.pop(key, None)), graph)
+        return graph
+
+
+class Roadmap:
+    """The roadmap of one map (its edge starts) for one `TransitPlanner` (its failure, its
+    scene): the shared graph (`roadmap_graph`) and what this planner learned of it in its
+    scene."""
+
+    def __init__(self, transits: TransitChecks, q_start: np.ndarray) -> None:
+        self.t = transits
+        graph = roadmap_graph(transits, q_start)
+        self.q, self.speed, self.links, self.link_time = graph.q, graph.speed, graph.links, graph.link_time
         self._scene = -1  # the scene version the caches below belong to
-        self._free = np.ones(len(q), bool)
+        self._free = np.ones(len(self.q), bool)
         self._checked: dict[tuple[int, int], bool] = {}  # undirected roadmap links in this scene
 
     def _in_scene(self) -> None:

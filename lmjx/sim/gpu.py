@@ -228,6 +228,12 @@ class GpuSimulator:
     def description(self) -> str:
         return f"MuJoCo Warp on {self.device.name}, whole scene ({self.scene.n_objects} objects)"
 
+    @property
+    def full_batch(self) -> int:
+        """Candidates that fill the largest batch (`lmjx.evaluation.lockstep` simulates the
+        waiting requests at once when they reach it)."""
+        return self.config.buckets[-1]
+
     def bucket(self, n: int) -> int:
         """The batch size n candidates are padded to (the largest size for more)."""
         return next((b for b in self.config.buckets if n <= b), self.config.buckets[-1])
