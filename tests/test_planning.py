@@ -366,9 +366,9 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     lazy_tries = [x["simulated"] for (a, _), r in zip(runs, alone, strict=True) if a == "lazy" for x in r["steps"]]
     assert max(lazy_tries) > 1  # Lazy waited for a simulation between tries (what could go wrong)
     for window in (None, 2):  # all at once (a GPU's batches), or two in flight (the CPU's cores)
+        task = resolve_task(1, robot, "hard")
         setups = [
-            setup_trial(robot, m, resolve_task(1, robot, "hard"), c, seed=seed, simulator=sim,
-                        transits=TransitPlanner(robot, m.failure))  # fmt: skip
+            setup_trial(robot, m, task, c, seed=seed, simulator=sim, transits=TransitPlanner(robot, m.failure))
             for c, (_, seed) in zip(cfgs, runs, strict=True)
         ]
         together: dict[int, dict] = {}
