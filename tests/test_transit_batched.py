@@ -1,7 +1,8 @@
 """The transit planner's search for actions, batched (states read in bulk, starts and edges
-screened many blocks at once, every turned edge checked in one batch), against the search as
-it read before (tests/reference_transit.py): the same actions, in the same order, with the
-same transits and states, and the same tally of what was not offered."""
+screened far ahead, the transits of many edges searched at once, every turned edge checked in
+one batch), against the search as it read before (tests/reference_transit.py): the same
+actions, in the same order, with the same transits and states, and where every edge was
+tested, the same tally of what was not offered."""
 
 from __future__ import annotations
 
@@ -58,12 +59,15 @@ def test_batched_search_offers_the_actions_of_the_one_edge_at_a_time_search(robo
                 tp.set_scene(sc, objects)
             first = new.actions(view, order, new.park, 12)
             _same(first, ref.actions(view, order, ref.park, 12))
-            assert new.last_tally == ref.last_tally and first, new.last_tally
+            assert first
+            if len(first) < 12:  # every edge tested: the same tally (else each counts the edges it looked at)
+                assert new.last_tally == ref.last_tally
             a = first[0]
             came_from, trail = a.q[a.transit_steps :], np.concatenate([new.park[None], a.q])
             after = new.actions(view, order, a.q[-1], 6, came_from, trail)
             _same(after, ref.actions(view, order, a.q[-1], 6, came_from, trail))
-            assert new.last_tally == ref.last_tally
+            if len(after) < 6:
+                assert new.last_tally == ref.last_tally
         m.close()
 
 

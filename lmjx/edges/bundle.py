@@ -20,6 +20,7 @@ gives the same edges, for any chunk size and any number of devices.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,6 +35,7 @@ from lmjx.runtime.batching import backend
 from lmjx.runtime.reprs import config_repr
 
 IK_FAILED = "ik"  # an edge whose start could not be solved
+_HOLD_LOCK = threading.Lock()  # (trials on threads of their own may ask at once)
 # many edges' states at once (`Bundle.states`): name -> rows of all of them, in order; and
 # each edge's number of states
 EdgeStates = tuple[dict[str, np.ndarray], np.ndarray]
@@ -185,6 +187,16 @@ class Bundle:
         lengths = np.asarray(self.length[edges], np.int64)
         rows = state_rows(np.asarray(self.offset[edges], np.int64), lengths)
         return {name: take_rows(getattr(self, name), rows) for name in names}, lengths
+
+    def hold(self, names: tuple[str, ...] = ("q",)) -> None:
+        """Keep the states `names` of a lazily opened map in memory from now on (read at once,
+        every chunk decompressed on all cores): a planner reads those of tens of thousands of
+        edges per decision.  Nothing changes for states already in memory."""
+        with _HOLD_LOCK:
+            for name in names:
+                data = getattr(self, name)
+                if hasattr(data, "whole"):
+                    setattr(self, name, data.whole())
 
     def prefetch(self, edges: np.ndarray, names: tuple[str, ...] = ("q", "qd", "p")) -> None:
         """Read the states of many edges at once from a lazily opened map (a no-op when the

@@ -160,6 +160,31 @@ class StateReader:
             limit = max(1, self.cache_bytes // max(1, self.rows * self.width * 4))
             self._load(needed[:limit])
 
+    def whole(self) -> np.ndarray:
+        """Every row, in one array (the chunks decompressed on all cores, none kept in the cache)."""
+        if not self.fast:
+            return np.asarray(self._h5py_rows(slice(0, self.shape[0])))
+        out = np.empty(self.shape, np.float32)
+        n = -(-self.shape[0] // self.rows) if self.rows else 0
+
+        def one(c: int) -> None:
+            a = c * self.rows
+            b = min(a + self.rows, self.shape[0])
+            block = self.cache.get(c)
+            if block is None:
+                try:
+                    mask, raw = self.ds.id.read_direct_chunk((a, 0))  # (h5py reads one at a time)
+                except OSError as e:  # its place in the file is lost
+                    raise damaged(self.ds, f"the chunk of row {a:,}", str(e).splitlines()[0]) from None
+                block = self._decompress(c, raw) if not mask else None
+            out[a:b] = block[: b - a] if block is not None else self._h5py_rows(slice(a, b))
+
+        with self._lock:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="lmjx-states")
+            list(self._pool.map(one, range(n)))
+        return out
+
     def gather(self, rows: np.ndarray) -> np.ndarray:
         """Rows `rows` (any order, repeats allowed) as one (len(rows), w) array: every chunk
         they touch decompressed at once (all cores), each row copied once."""

@@ -67,7 +67,10 @@ def edges_over_target(
     iy = np.nonzero(np.abs(ys - target_xy[1]) <= r + cell / 2)[0]
     nx = len(xs)
     found = [bundle.edges_over(int(y), int(x), nx) for y in iy for x in ix]
-    return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int32)
+    if not found:
+        return np.zeros(0, np.int32)
+    ids = np.sort(np.concatenate(found))
+    return ids[np.r_[True, ids[1:] != ids[:-1]]] if len(ids) else ids
 
 
 def _degrees(turn: float) -> int:
@@ -138,6 +141,7 @@ class Planner:
         self.config = config
         batched = bool(getattr(simulator, "prefers_batches", False))
         self.batched = batched
+        bundle.hold(("q",))  # (a lazily read map: each decision screens the states of thousands of edges)
         self.transits = transits or TransitPlanner(robot, failure, batched=batched)
         self.transits.late_start = config.late_start  # (trials sharing a TransitPlanner share a config)
         self.field = _score_field(robot, failure, reach, bundle, sc, config)
@@ -244,7 +248,26 @@ class Planner:
                             break
             else:
                 rec.no_action = dict(self.transits.last_tally)
-        else:  # one at a time, stopping at the first improvement
+        elif not cfg.late_start:  # one at a time, stopping at the first improvement
+            search = self.transits.search_actions(bundle, order, obs.robot_q, self.came_from, self.trail, clock)
+            while rec.simulated < tries:
+                with clock.phase("offer"):
+                    self.transits.set_scene(self.sc, obs.objects)  # (a transit planner shared while waiting)
+                acts = search.next(1, grow=False)  # the next edge in order that has an action
+                if not acts:
+                    break
+                rec.simulated += 1
+                done = yield Simulate(obs.robot_q, obs.objects, acts)
+                with clock.phase("simulate"):
+                    sc = float(score(self.sc, self.robot, done.objects, self.field)[0])
+                if sc < best_s:
+                    best_a, best_s = acts[0], sc
+                if sc <= now - cfg.min_progress:
+                    improved = True
+                    break
+            if rec.simulated == 0:
+                rec.no_action = dict(search.tally)
+        else:  # one at a time, each edge searched alone (late starts are tried edge by edge)
             tally = dict.fromkeys(NO_ACTION_KEYS, 0)
             for e in order:
                 if rec.simulated == tries:

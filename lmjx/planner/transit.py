@@ -214,10 +214,9 @@ class TransitPlanner(SceneChecks, JamEscapes):
         begin = np.zeros(n, int) if first_state is None else np.asarray(first_state, int)
         counted = k >= begin[owner]
         prefix = cut_at_fixed(c[:, fixed].min(axis=1) if fixed.any() else None, owner, k, lengths, counted)
-        if self.acting:
+        if self.acting:  # (each edge's states are one run of rows: reduced per run)
             inside = counted & (k < prefix[owner])
-            nearest = np.full(n, np.inf)
-            np.minimum.at(nearest, owner[inside], c[inside, 0])
+            nearest = np.minimum.reduceat(np.where(inside, c[:, 0], np.inf), first) if n else np.zeros(0)
             prefix[nearest > -ACT_DEPTH] = 0
         prefix[prefix - begin < MIN_EDGE_STATES] = 0
         if isinstance(bundle, TurnedEdges):  # the base and the table do not turn: check what is executed
@@ -307,77 +306,27 @@ class TransitPlanner(SceneChecks, JamEscapes):
         enters edges whose start was blocked at their `late_starts` (at most LATE_TRIES of
         them, in order, per action still wanted); their actions come after the others.
         `clock`: where the screening ("offer") and the transits ("transit") are timed."""
-        clock = clock or PhaseClock()
-        out: list[Action] = []
-        tally = dict.fromkeys(NO_ACTION_KEYS, 0)  # why edges were not offered (`last_tally`)
-        self.last_tally = tally
-        q_arm, lead = q_now, np.zeros((0, len(q_now)))  # where the arm is; what it does first
-        jammed = False  # inside the margins with no way back: transits may begin with the `escape`
-        if came_from is not None and self.scene is not None:
-
-            def way_back() -> tuple[np.ndarray | None, bool]:  # the retreat, and whether the arm is jammed
-                inside = bool(self.scene_slack(q_now[None])[0] < 0)
-                back = self.retreat(q_now, came_from) if inside else None
-                return back, inside and back is None
-
-            key = (q_now.tobytes(), np.asarray(came_from).tobytes(), self.scene_version)
-            with clock.phase("transit"):
-                back, jammed = self._memo("_retreat", key, way_back)
-            if back is not None:
-                lead, q_now = back, back[-1]  # transits are planned from the retreat's end
-        block = max(want, MIN_BLOCK)
-        blocked_starts: list[np.ndarray] = []  # for `late_start`'s second pass
-        screened = _Screened(self, bundle, edges, self.lookahead(block))
-        for late in (False, True):
-            if late and not (self.late_start and len(out) < want and blocked_starts):
-                break
-            # (at most LATE_TRIES per action wanted: a late start costs a test of every state of the edge)
-            pool = np.concatenate(blocked_starts)[: LATE_TRIES * (want - len(out))] if late else edges
-            i = 0
-            while len(out) < want and i < len(pool):
-                part = np.asarray(pool[i : i + block])
-                with clock.phase("offer"):
-                    if not late:
-                        tally["tested"] += len(part)
-                        # the cheapest test first: most edges over a target start where an object stands
-                        free, prefix = screened.take(i, i + len(part))
-                        tally["start_blocked"] += int(len(part) - free.sum())
-                        if self.late_start:
-                            blocked_starts.append(part[~free])
-                        begin = np.zeros(len(part), int)
-                        part, begin = part[free], begin[free]
-                    else:  # too few actions from clear starts: edges entered after a start in a fixed obstacle's margin
-                        begin = self.late_starts(bundle, part)
-                        free = begin > 0
-                        tally["start_blocked"] -= int(free.sum())
-                        part, begin = part[free], begin[free]
-                        prefix = self.edge_prefixes(bundle, part, begin) if len(part) else np.zeros(0, int)
-                    i += len(free)
-                    tally["edge_unusable"] += int((prefix <= 0).sum())
-                    part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
-                if not len(part):
-                    continue
-                with clock.phase("transit"):
-                    starts = bundle.q_start[part].astype(np.float64)
-                    late_ones = np.nonzero(begin)[0]
-                    if len(late_ones):
-                        q_late, lengths = bundle.states(part[late_ones], ("q",))
-                        firsts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-                        starts[late_ones] = q_late["q"][firsts + begin[late_ones]]
-                    ways = self._ways(bundle, part, starts, list(range(len(part))), q_now, lead, trail)
-                    stuck = [j for j in range(len(part)) if j not in ways]
-                    if jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
-                        esc = self._memo("_escape", (q_now.tobytes(), self.scene_version), lambda: self.escape(q_now))
-                        if esc is not None:
-                            for j, (route, transit) in self._ways(bundle, part, starts, stuck, esc[-1], esc,
-                                                                  trail).items():  # fmt: skip
-                                ways[j] = ("escape+" + route, transit)
-                    ok = sorted(ways)
-                    tally["no_transit"] += len(part) - len(ok)
-                    take = ok[: want - len(out)]
-                    out += _actions(bundle, part[take], q_arm, [ways[j] for j in take], prefix[take], begin[take])
-                block = max(MIN_BLOCK, 2 * (want - len(out)))
+        search = self.search_actions(bundle, edges, q_now, came_from, trail, clock, max(want, MIN_BLOCK))
+        out = search.next(want)
+        if self.late_start and len(out) < want and search.blocked_starts:
+            out += search.late(want - len(out))
         return out
+
+    def search_actions(
+        self,
+        bundle: Bundle,
+        edges: np.ndarray,
+        q_now: np.ndarray,
+        came_from: np.ndarray | None = None,
+        trail: np.ndarray | None = None,
+        clock: PhaseClock | None = None,
+        block: int = MIN_BLOCK,
+    ) -> ActionSearch:
+        """The search `actions` runs, to be taken a few actions at a time (`ActionSearch.next`:
+        Lazy tries one, simulates it, then asks for the next); its tally is `last_tally`."""
+        search = ActionSearch(self, bundle, edges, q_now, came_from, trail, clock or PhaseClock(), block)
+        self.last_tally = search.tally
+        return search
 
     def lookahead(self, block: int) -> int:
         """Edges whose starts and edges `actions` screens at once: a block at a time on the
@@ -491,9 +440,125 @@ class TransitPlanner(SceneChecks, JamEscapes):
         return out
 
 
+class ActionSearch:
+    """The feasible actions among `edges`, in their order, found a few at a time
+    (`TransitPlanner.actions`, `TransitPlanner.search_actions`): the edges screened ahead
+    (`_Screened`), the usable ones gathered until there are as many as the actions still
+    wanted (twice as many after a round that found too few), their transits searched at once
+    (`TransitPlanner._ways`), the actions made in order.  A round's transits depend on the
+    edges searched together only through the roadmap's shared checks, which find the same
+    shortest free ways whoever asks (tests/test_transit_batched.py compares the whole search
+    with the one-edge-at-a-time search it replaces)."""
+
+    def __init__(
+        self,
+        tp: TransitPlanner,
+        bundle: Bundle,
+        edges: np.ndarray,
+        q_now: np.ndarray,
+        came_from: np.ndarray | None,
+        trail: np.ndarray | None,
+        clock: PhaseClock,
+        block: int,
+    ) -> None:
+        self.tp, self.bundle, self.edges, self.trail, self.clock = tp, bundle, np.asarray(edges), trail, clock
+        self.tally = dict.fromkeys(NO_ACTION_KEYS, 0)  # why edges were not offered (`last_tally`)
+        self.q_arm, self.lead, self.q_from = q_now, np.zeros((0, len(q_now))), q_now  # where the arm is, what
+        # it does first, where transits begin
+        self.jammed = False  # inside the margins with no way back: transits may begin with the `escape`
+        if came_from is not None and tp.scene is not None:
+
+            def way_back() -> tuple[np.ndarray | None, bool]:  # the retreat, and whether the arm is jammed
+                inside = bool(tp.scene_slack(q_now[None])[0] < 0)
+                back = tp.retreat(q_now, came_from) if inside else None
+                return back, inside and back is None
+
+            key = (q_now.tobytes(), np.asarray(came_from).tobytes(), tp.scene_version)
+            with clock.phase("transit"):
+                back, self.jammed = tp._memo("_retreat", key, way_back)
+            if back is not None:
+                self.lead, self.q_from = back, back[-1]  # transits are planned from the retreat's end
+        self.screened = _Screened(tp, bundle, self.edges, tp.lookahead(block))
+        self.i = 0  # edges[:i] are searched
+        self.need = 0  # usable edges the next round gathers (0: as many as wanted)
+        self.blocked_starts: list[np.ndarray] = []  # for `late_start`'s second pass
+
+    def next(self, want: int, grow: bool = True) -> list[Action]:
+        """The next `want` feasible actions (fewer where the edges run out).  `grow` False:
+        gather one usable edge at a time (as many transits searched as actions wanted)."""
+        out: list[Action] = []
+        need = want
+        while len(out) < want and self.i < len(self.edges):
+            with self.clock.phase("offer"):
+                # the cheapest test first (most edges over a target start where an object
+                # stands), then the edges' own: until `need` edges pass both, or none is left
+                i = self.i
+                j, free, prefix = self.screened.gather(i, need)
+                part = self.edges[i:j]
+                self.tally["tested"] += j - i
+                self.tally["start_blocked"] += int(len(part) - free.sum())
+                if self.tp.late_start:
+                    self.blocked_starts.append(part[~free])
+                self.i = j
+                part = part[free]
+                self.tally["edge_unusable"] += int((prefix <= 0).sum())
+                part, prefix = part[prefix > 0], prefix[prefix > 0]
+            out += self._made(part, prefix, np.zeros(len(part), int), want - len(out))
+            need = 2 * (want - len(out)) if grow else want - len(out)
+        return out
+
+    def late(self, want: int) -> list[Action]:
+        """`late_start`'s second pass: edges whose start was blocked entered at their
+        `late_starts`, at most LATE_TRIES of them per action still wanted, in order, a block
+        at a time (twice the actions wanted, at least MIN_BLOCK)."""
+        out: list[Action] = []
+        # (at most LATE_TRIES per action wanted: a late start costs a test of every state of the edge)
+        pool = np.concatenate(self.blocked_starts)[: LATE_TRIES * want]
+        i, block = 0, max(MIN_BLOCK, 2 * want)
+        while len(out) < want and i < len(pool):
+            with self.clock.phase("offer"):
+                part = np.asarray(pool[i : i + block])
+                i += len(part)
+                begin = self.tp.late_starts(self.bundle, part)
+                free = begin > 0
+                self.tally["start_blocked"] -= int(free.sum())
+                part, begin = part[free], begin[free]
+                prefix = self.tp.edge_prefixes(self.bundle, part, begin) if len(part) else np.zeros(0, int)
+                self.tally["edge_unusable"] += int((prefix <= 0).sum())
+                part, prefix, begin = part[prefix > 0], prefix[prefix > 0], begin[prefix > 0]
+            out += self._made(part, prefix, begin, want - len(out))
+            block = max(MIN_BLOCK, 2 * (want - len(out)))
+        return out
+
+    def _made(self, part: np.ndarray, prefix: np.ndarray, begin: np.ndarray, want: int) -> list[Action]:
+        """The actions of the first `want` of the usable edges `part` that have a transit."""
+        if not len(part):
+            return []
+        tp, bundle = self.tp, self.bundle
+        with self.clock.phase("transit"):
+            starts = bundle.q_start[part].astype(np.float64)
+            late_ones = np.nonzero(begin)[0]
+            if len(late_ones):
+                q_late, lengths = bundle.states(part[late_ones], ("q",))
+                firsts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+                starts[late_ones] = q_late["q"][firsts + begin[late_ones]]
+            q_from = self.q_from
+            ways = tp._ways(bundle, part, starts, list(range(len(part))), q_from, self.lead, self.trail)
+            stuck = [j for j in range(len(part)) if j not in ways]
+            if self.jammed and stuck:  # no way from where the arm stands: the same ways from the escape's end
+                esc = tp._memo("_escape", (q_from.tobytes(), tp.scene_version), lambda: tp.escape(q_from))
+                if esc is not None:
+                    for j, (route, transit) in tp._ways(bundle, part, starts, stuck, esc[-1], esc, self.trail).items():
+                        ways[j] = ("escape+" + route, transit)
+            ok = sorted(ways)
+            self.tally["no_transit"] += len(part) - len(ok)
+            take = ok[:want]
+            return _actions(bundle, part[take], self.q_arm, [ways[j] for j in take], prefix[take], begin[take])
+
+
 class _Screened:
-    """`TransitPlanner.actions`' first tests of its candidates, made ahead of the blocks that
-    use them (`lookahead` edges at a time): whether each edge's start is clear of the scene
+    """`TransitPlanner.actions`' first tests of its candidates, made ahead of their use
+    (`lookahead` edges at a time): whether each edge's start is clear of the scene
     (`blocked`), and for those that are, how many of its states an action executes
     (`edge_prefixes`).  Each edge's figures are its own: screening more at once changes
     nothing but the number of calls."""
@@ -504,18 +569,32 @@ class _Screened:
         self.free = np.zeros(len(self.edges), bool)
         self.prefix = np.zeros(len(self.edges), np.int64)
 
-    def take(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
-        """(free start, prefix of the free ones) of edges[a:b] (screened first where they are not yet)."""
-        if b > self.done:
-            stop = min(len(self.edges), max(b, self.done + self.lookahead))
-            part = self.edges[self.done : stop]
-            free = ~self.tp.blocked(self.bundle.q_start[part].astype(np.float64))
-            self.free[self.done : stop] = free
-            if free.any():
-                self.prefix[self.done : stop][free] = self.tp.edge_prefixes(self.bundle, part[free])
-            self.done = stop
+    def _screen(self, stop: int) -> None:
+        """Screen edges[done:stop] (at least `lookahead` of them, where there are)."""
+        stop = min(len(self.edges), max(stop, self.done + self.lookahead))
+        part = self.edges[self.done : stop]
+        free = ~self.tp.blocked(self.bundle.q_start[part].astype(np.float64))
+        self.free[self.done : stop] = free
+        if free.any():
+            self.prefix[self.done : stop][free] = self.tp.edge_prefixes(self.bundle, part[free])
+        self.done = stop
+
+    def gather(self, a: int, need: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """From edge a on, as far as the `need`-th usable edge (a clear start and a prefix),
+        or to the end where there are fewer: (the end b, whether each of edges[a:b] starts
+        clear, the prefixes of those that do)."""
+        b = a
+        while True:
+            usable = np.flatnonzero(self.free[a : self.done] & (self.prefix[a : self.done] > 0))
+            if len(usable) >= need:
+                b = a + int(usable[need - 1]) + 1
+                break
+            if self.done == len(self.edges):
+                b = len(self.edges)
+                break
+            self._screen(self.done + need)
         free = self.free[a:b]
-        return free, self.prefix[a:b][free]
+        return b, free, self.prefix[a:b][free]
 
 
 def transit_velocities(q_from: np.ndarray, targets: np.ndarray) -> np.ndarray:

@@ -125,15 +125,19 @@ class SimulatedRealWorld:
     def _touching(self) -> tuple[set[str], set[str]]:
         """Movable objects and fixed obstacles in contact with the arm now."""
         assert self.data is not None
-        objects, fixed = set(), set()
-        for c in self.data.contact[: self.data.ncon]:
-            g1, g2 = int(c.geom1), int(c.geom2)
-            for a, b in ((g1, g2), (g2, g1)):
-                if self._robot_geom[a]:
-                    if b in self._object_of:
-                        objects.add(self._object_of[b])
-                    elif b in self._fixed_of:
-                        fixed.add(self._fixed_of[b])
+        objects: set[str] = set()
+        fixed: set[str] = set()
+        if not self.data.ncon:
+            return objects, fixed
+        pairs = self.data.contact.geom  # (ncon, 2): most are the objects' own, on the table
+        arm = self._robot_geom[pairs]
+        if not arm.any():
+            return objects, fixed
+        for b in np.concatenate([pairs[arm[:, 0], 1], pairs[arm[:, 1], 0]]).tolist():
+            if b in self._object_of:
+                objects.add(self._object_of[b])
+            elif b in self._fixed_of:
+                fixed.add(self._fixed_of[b])
         return objects, fixed
 
     def _clear_of(self, names: set[str]) -> set[str]:
