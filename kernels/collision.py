@@ -207,6 +207,27 @@ def boxes_clearance(
     return BoxClearance(jnp.min(d, axis=0))
 
 
+class BoxLowerBound(NamedTuple):
+    box_bound: jnp.ndarray  # (nb,) [m]
+
+
+def boxes_lower_bound(arm: ArmModel, q: jnp.ndarray, centers: jnp.ndarray, radii: jnp.ndarray) -> BoxLowerBound:
+    """A lower bound of the arm's clearance at joint angles q (nj,) to each of nb boxes, from
+    their centres (nb, 3) and circumradii (nb,) alone: each capsule axis's distance to the
+    centre less the capsule's radius and the box's circumradius, the smallest over the
+    capsules.  Far cheaper than `boxes_clearance`, which only the configurations this leaves
+    in doubt need.  A padding box far away (radius 0) is harmless."""
+    poses = body_poses(arm.tree, [q[j] for j in range(q.shape[0])])
+    a_w, b_w = capsule_endpoints(arm, poses, list(range(len(arm.cap_r))), q[0])
+    a = jnp.stack(a_w, axis=-1)[:, None]  # (nc, 1, 3)
+    d = jnp.stack(b_w, axis=-1)[:, None] - a
+    ap = centers[None] - a  # (nc, nb, 3)
+    t = jnp.clip(jnp.sum(ap * d, axis=-1) / jnp.maximum(jnp.sum(d * d, axis=-1), 1e-12), 0.0, 1.0)
+    off = ap - t[..., None] * d
+    gap = jnp.sqrt(jnp.sum(off * off, axis=-1)) - np.asarray(arm.cap_r, np.float32)[:, None]
+    return BoxLowerBound(jnp.min(gap, axis=0) - radii)
+
+
 class CapsuleEnds(NamedTuple):
     """World endpoints of every capsule of the arm at one configuration."""
 

@@ -26,6 +26,8 @@ MAX_BOXES = 16  # boxes of a scene in one clearance program (padded)
 EDGE_BOXES = 4  # the target and up to three fixed obstacles, in the program testing edges' states
 MIN_EDGE_STATES = 5  # an edge cut short at a fixed obstacle keeps at least this many states (0.1 s)
 SMALL_CHUNK = 64  # configurations per call of the planner's clearance programs on the CPU
+BOUND_CHUNK = 256  # configurations per call of the lower bound's program on the CPU (`lower_bounds`)
+BOUND_SLACK = 1e-5  # [m] taken off the float32 lower bound: a bound never above the exact clearance
 
 
 @dataclass
@@ -55,6 +57,28 @@ class SceneBoxes:
         h = np.zeros((n, 3), np.float32)
         c[:nb], r[:nb], h[:nb] = self.centers[which], self.rots[which], self.halves[which]
         return c, r, h
+
+    def bound_inputs(self, n: int = MAX_BOXES) -> tuple[np.ndarray, np.ndarray]:
+        """(centres, circumradii) of `n` box slots, float32, for the lower bound's program:
+        the scene's boxes, then points far below the table."""
+        c, _, h = self.padded(n)
+        return c, np.linalg.norm(h, axis=1).astype(np.float32)
+
+
+def bound_kernel(robot: Robot, inputs: tuple[np.ndarray, np.ndarray]):
+    """jit(vmap(boxes_lower_bound)) over chunks of configurations, the scene's box centres and
+    circumradii shared (`SceneBoxes.bound_inputs`: one program for every scene of as many
+    slots)."""
+    from kernels.collision import boxes_lower_bound
+    from lmjx.runtime.batching import ChunkedKernel, backend
+
+    chunk = 1 << 14 if backend() != "cpu" else BOUND_CHUNK
+
+    def one(centers, radii, q):
+        return boxes_lower_bound(robot.arm, q, centers, radii)
+
+    return ChunkedKernel(("boxes_lower_bound", robot.model_hash, len(inputs[0])), one, list(inputs),
+                         [(np.float32, (robot.nq,))], chunk)  # fmt: skip
 
 
 def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
@@ -210,22 +234,15 @@ class SceneChecks:
     def lower_bounds(self, qs: np.ndarray) -> np.ndarray:
         """(n, nb) a lower bound of the arm's clearance to each box of the scene: each capsule
         axis's distance to the box's centre less the capsule's radius and the box's
-        circumradius (the capsules from lmjx's capsule kernel, a pass far cheaper than the
-        exact clearance, which only the configurations this leaves in doubt need)."""
-        from lmjx.edges.index import capsule_ends_kernel
-
+        circumradius (lmjx's bound kernel, `kernels.collision.boxes_lower_bound`: a pass far
+        cheaper than the exact clearance, which only the configurations this leaves in doubt
+        need), less BOUND_SLACK (its float32 rounding)."""
         assert self.scene is not None
-        # (on the host: the CPU backend's bound, `_host_bounds`, in calls of a few dozen)
-        ends = capsule_ends_kernel(self.robot, SMALL_CHUNK).run(np.asarray(qs, np.float32))
-        a, b = ends["a"].astype(np.float64), ends["b"].astype(np.float64)  # (n, nc, 3)
-        c = self.scene.centers  # (nb, 3)
-        d = b - a
-        ap = c[None, None] - a[:, :, None]  # (n, nc, nb, 3)
-        t = np.clip(np.einsum("ncbk,nck->ncb", ap, d) / np.maximum(np.einsum("nck,nck->nc", d, d), 1e-12)[..., None],
-                    0.0, 1.0)  # fmt: skip
-        gap = np.linalg.norm(ap - t[..., None] * d[:, :, None], axis=-1)  # (n, nc, nb)
-        radius = np.asarray(self.robot.arm.cap_r)[None, :, None]
-        return (gap - radius).min(axis=1) - np.linalg.norm(self.scene.halves, axis=1)[None]
+        n = box_slots(len(self.scene.names))
+        if n not in self._bound_kernels:  # later scenes of n slots set theirs (`set_scene`)
+            self._bound_kernels[n] = bound_kernel(self.robot, self.scene.bound_inputs(n))
+        out = self._bound_kernels[n].run(np.asarray(qs, np.float32))["box_bound"]
+        return out[:, : len(self.scene.names)].astype(np.float64) - BOUND_SLACK
 
     def scene_slacks(self, qs: np.ndarray) -> np.ndarray:
         """(n, nb) how far each configuration keeps outside each box's margin (its clearance

@@ -79,6 +79,7 @@ NO_ACTION_KEYS = ("tested", "start_blocked", "edge_unusable", "no_transit")
 MEMO_KEYS = 4  # per-decision caches (`_memo`): the latest this many keys
 MIN_BLOCK = 32  # edges tested at a time when looking for feasible actions
 SCREEN_AHEAD = 8192  # edges whose starts and states are tested at once on an accelerator (`lookahead`)
+HOST_SCREEN = 256  # ... on the host
 LATE_TRIES = 4  # `late_start`: edges with a blocked start tried per action still wanted
 
 # (a call holds a median of about 40: a chunk of 256 cost 5.3 ms for 40 where 64 costs 1.1 ms)
@@ -117,6 +118,7 @@ class TransitPlanner(SceneChecks, JamEscapes):
         self.batched = batched
         self._kernel = None
         self._box_kernels: dict[int, Any] = {}  # box slots -> the scenes' clearance program (`box_slots`)
+        self._bound_kernels: dict[int, Any] = {}  # box slots -> the scenes' lower-bound program
         self._edge_kernel = None
         from lmjx.runtime.batching import backend
 
@@ -162,6 +164,8 @@ class TransitPlanner(SceneChecks, JamEscapes):
         n = box_slots(len(self.scene.names))
         if n in self._box_kernels:
             self._box_kernels[n].set_shared(*self.scene.padded(n))
+        if n in self._bound_kernels:
+            self._bound_kernels[n].set_shared(*self.scene.bound_inputs(n))
 
     def forget(self) -> None:
         """Drop what was kept about the scenes set so far (the transits through the park pose,
@@ -306,7 +310,7 @@ class TransitPlanner(SceneChecks, JamEscapes):
         enters edges whose start was blocked at their `late_starts` (at most LATE_TRIES of
         them, in order, per action still wanted); their actions come after the others.
         `clock`: where the screening ("offer") and the transits ("transit") are timed."""
-        search = self.search_actions(bundle, edges, q_now, came_from, trail, clock, max(want, MIN_BLOCK))
+        search = self.search_actions(bundle, edges, q_now, came_from, trail, clock, want)
         out = search.next(want)
         if self.late_start and len(out) < want and search.blocked_starts:
             out += search.late(want - len(out))
@@ -320,7 +324,7 @@ class TransitPlanner(SceneChecks, JamEscapes):
         came_from: np.ndarray | None = None,
         trail: np.ndarray | None = None,
         clock: PhaseClock | None = None,
-        block: int = MIN_BLOCK,
+        block: int = 1,
     ) -> ActionSearch:
         """The search `actions` runs, to be taken a few actions at a time (`ActionSearch.next`:
         Lazy tries one, simulates it, then asks for the next); its tally is `last_tally`."""
@@ -329,10 +333,13 @@ class TransitPlanner(SceneChecks, JamEscapes):
         return search
 
     def lookahead(self, block: int) -> int:
-        """Edges whose starts and edges `actions` screens at once: a block at a time on the
-        host (the checks cost per configuration), many blocks where the checks run on an
-        accelerator (they cost per call: `SCREEN_AHEAD` edges at a time)."""
-        return block if self._host_bounds or not self.batched else max(block, SCREEN_AHEAD)
+        """Edges whose starts and edges a search for `block` actions screens at once: on the
+        host, where the checks cost per configuration and per call, eight per action wanted,
+        from MIN_BLOCK to HOST_SCREEN; where the checks run on an accelerator (they cost per
+        call), 256 per action wanted, up to `SCREEN_AHEAD`."""
+        if self._host_bounds or not self.batched:
+            return max(MIN_BLOCK, min(HOST_SCREEN, 8 * block))
+        return max(block, min(SCREEN_AHEAD, 256 * block))
 
     def _ways(
         self,
