@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -32,6 +33,7 @@ from lmjx.edges.bundle import Bundle, EdgeStates
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
+from lmjx.runtime.cores import usable_cores
 
 TURN_STEP_DEG = 1  # turns are whole degrees (a record's `turn_deg` gives the turn exactly)
 TURNS_PER_EDGE = 4  # turned copies of one edge offered per target at most
@@ -40,6 +42,7 @@ TURNS_PER_EDGE = 4  # turned copies of one edge offered per target at most
 # turned copies; none of them usable where measured)
 START_CLEAR = 0.08  # [m]
 VERTICAL = 1e-9  # the axis counts as vertical when its z component is within this of +-1
+PARTS = 8  # `turned_over_target`'s work in this many parts on threads of its own
 
 
 @dataclass(frozen=True)
@@ -159,8 +162,12 @@ class _Pool:
     """What `turned_over_target` needs of a bundle, computed once per bundle."""
 
     axis: TurnAxis
-    radius: np.ndarray  # (K,) each index entry's cell: distance from the axis (increasing: the
-    # entries sorted by it, so that a ring about the axis is one slice)
+    # the index's entries sorted by band (their cell's distance from the axis in steps of
+    # `band_width`: a ring about the axis is one slice), then edge, then angle, decreasing
+    # (an edge's turns then come out nearly sorted: `turned_over_target`)
+    band: np.ndarray  # (K,) int64
+    band_width: float
+    radius: np.ndarray  # (K,) each index entry's cell: distance from the axis
     angle: np.ndarray  # (K,) ... and polar angle about it [rad]
     edges: np.ndarray  # (K,) each index entry's edge
     low: np.ndarray  # (E,) each edge's lowest base-joint angle over its states
@@ -186,13 +193,18 @@ def _pool(bundle: Bundle, reach: ReachResult, robot: Robot, failure: Failure) ->
         cy = reach.ys[cells // nx] - axis.anchor[1]
         column = _column(bundle.q, axis.joint)
         starts = np.asarray(bundle.offset, np.int64)
-        radius = np.hypot(cx, cy)
-        by_radius = np.argsort(radius, kind="stable")
+        radius, angle = np.hypot(cx, cy), np.arctan2(cy, cx)
+        width = reach.config.cell / 2
+        band = np.floor(radius / width).astype(np.int64)
+        edges = np.asarray(bundle.index_edges, np.int64)
+        order = np.lexsort((-angle, edges, band))
         pool = _Pool(
             axis=axis,
-            radius=radius[by_radius],
-            angle=np.arctan2(cy, cx)[by_radius],
-            edges=np.asarray(bundle.index_edges, np.int64)[by_radius],
+            band=band[order],
+            band_width=width,
+            radius=radius[order],
+            angle=angle[order],
+            edges=edges[order],
             low=np.minimum.reduceat(column, starts) if len(starts) else np.zeros(0),
             high=np.maximum.reduceat(column, starts) if len(starts) else np.zeros(0),
             start_xy=_rows(bundle.p, starts)[:, :2],
@@ -249,35 +261,79 @@ def turned_over_target(
     if pool is None or not len(pool.edges):
         return empty
     ax = pool.axis
-    t = np.asarray(target_xy, np.float64) - ax.anchor
+    target_xy = np.asarray(target_xy, np.float64)
+    t = target_xy - ax.anchor
     r_t, phi_t = float(np.hypot(*t)), float(np.arctan2(t[1], t[0]))
     ring = half + margin + reach.config.cell / 2
-    # the entries whose cell lies within `ring` of the target's distance from the axis: one slice
-    lo, hi = np.searchsorted(pool.radius, [r_t - ring - 1e-9, r_t + ring + 1e-9])
-    near = slice(int(lo), int(hi))
-    keep_near = np.abs(pool.radius[near] - r_t) <= ring  # (the test itself, on the slice)
-    e = pool.edges[near][keep_near]
-    world = (phi_t - pool.angle[near][keep_near] + math.pi) % (2 * math.pi) - math.pi  # the turn seen from above
-    steps = np.round(np.degrees(ax.sign * world) / TURN_STEP_DEG).astype(np.int64)  # in the joint's sense
-    turn = np.radians(steps * TURN_STEP_DEG)
-    ok = (steps != 0) & (pool.low[e] + turn >= pool.lower) & (pool.high[e] + turn <= pool.upper)
-    e, steps = e[ok], steps[ok]
-    if not len(e):
-        return empty
-    # unique (edge, turn) pairs, sorted by edge then turn
+    # the entries whose cell lies within `ring` of the target's distance from the axis: in the
+    # slice of their bands
+    bands = np.floor(np.array([r_t - ring, r_t + ring]) / pool.band_width).astype(np.int64)
+    lo = int(np.searchsorted(pool.band, bands[0] - 1, "left"))
+    hi = int(np.searchsorted(pool.band, bands[1] + 1, "right"))
     span = 2 * (360 // TURN_STEP_DEG) + 1
-    pairs = np.sort(e * span + steps + span // 2)
-    pairs = pairs[np.r_[True, pairs[1:] != pairs[:-1]]]  # (np.unique hashes first: 10x slower here)
-    pe, ps = pairs // span, pairs % span - span // 2
-    # at most per_edge turns per edge, spread evenly over its turns
-    first = np.flatnonzero(np.r_[True, pe[1:] != pe[:-1]])
-    count = np.diff(np.r_[first, len(pe)])
-    rank = np.arange(len(pe)) - np.repeat(first, count)
-    n = np.repeat(count, count)
-    wanted = np.round(np.arange(per_edge)[None, :] * (np.maximum(n, per_edge)[:, None] - 1) / max(per_edge - 1, 1))
-    keep = (n <= per_edge) | np.any(wanted == rank[:, None], axis=1)
-    pe, ps = pe[keep], ps[keep]
-    turn = np.radians(ps * TURN_STEP_DEG)
-    start = turn_xy(pool.start_xy[pe], ax.sign * turn, ax.anchor)
-    clear = np.hypot(*(start - np.asarray(target_xy, np.float64)).T) >= START_CLEAR
-    return pe[clear], turn[clear]
+    narrow = len(pool.low) * span < 2**32  # (keys of 32 bits where they fit)
+
+    def keys_of(a: int, b: int) -> np.ndarray:  # the sorted (edge, turn) keys of entries a..b-1 of the pool
+        near = slice(a, b)
+        keep_near = np.abs(pool.radius[near] - r_t) <= ring  # (the ring's own test)
+        e = pool.edges[near][keep_near]
+        world = (phi_t - pool.angle[near][keep_near] + math.pi) % (2 * math.pi) - math.pi  # the turn seen from above
+        steps = np.round(np.degrees(ax.sign * world) / TURN_STEP_DEG).astype(np.int64)  # in the joint's sense
+        keys = e * span + steps + span // 2
+        # (a band's keys are sorted but for an edge's turns that wrap past 180 degrees: few runs)
+        return np.sort(keys.astype(np.uint32) if narrow else keys, kind="stable")
+
+    # unique (edge, turn) pairs, sorted by edge then turn (np.unique hashes first: 10x slower here)
+    pairs = np.sort(np.concatenate(_in_parts(keys_of, lo, hi)), kind="stable")  # (sorted parts: merged)
+    pairs = pairs[np.r_[True, pairs[1:] != pairs[:-1]]].astype(np.int64)
+    if not len(pairs):
+        return empty
+    # each edge's pairs (whole edges per part): those kept, with their turns
+    edge_of = pairs // span
+    cuts = [int(np.searchsorted(edge_of, edge_of[min(len(pairs) - 1, k * len(pairs) // PARTS)]))
+            for k in range(1, PARTS)]  # fmt: skip
+    bounds = [0, *cuts, len(pairs)]
+
+    def kept(a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        pe, ps = edge_of[a:b], pairs[a:b] % span - span // 2
+        # no turn 0, and none past the base joint's limits anywhere along the edge
+        turn = np.radians(ps * TURN_STEP_DEG)
+        ok = (ps != 0) & (pool.low[pe] + turn >= pool.lower) & (pool.high[pe] + turn <= pool.upper)
+        pe, ps = pe[ok], ps[ok]
+        if not len(pe):
+            return pe, np.zeros(0)
+        # at most per_edge turns per edge, spread evenly over its turns: of an edge's n turns,
+        # the ranks round(k (n - 1) / (per_edge - 1)), k = 0 .. per_edge - 1 (in integers: exactly)
+        first = np.flatnonzero(np.r_[True, pe[1:] != pe[:-1]])
+        count = np.diff(np.r_[first, len(pe)])
+        rank = np.arange(len(pe)) - np.repeat(first, count)
+        n = np.repeat(count, count)
+        keep = n <= per_edge
+        d = max(per_edge - 1, 1)
+        for k in range(per_edge):
+            keep |= rank == (2 * k * (n - 1) + d) // (2 * d)
+        pe, ps = pe[keep], ps[keep]
+        turn = np.radians(ps * TURN_STEP_DEG)
+        start = turn_xy(pool.start_xy[pe], ax.sign * turn, ax.anchor)
+        clear = np.hypot(*(start - target_xy).T) >= START_CLEAR
+        return pe[clear], turn[clear]
+
+    parts = _pooled().map(lambda k: kept(bounds[k], bounds[k + 1]), range(len(bounds) - 1))
+    ids, turns = zip(*parts, strict=True)
+    return np.concatenate(ids), np.concatenate(turns)
+
+
+def _in_parts(fn, a: int, b: int) -> list:
+    """fn over PARTS contiguous parts of a..b-1, on the pool's threads (numpy lets go of the
+    interpreter lock over large arrays), in order."""
+    bounds = np.linspace(a, b, PARTS + 1).astype(np.int64)
+    return list(_pooled().map(lambda k: fn(int(bounds[k]), int(bounds[k + 1])), range(PARTS)))
+
+
+_THREADS: list[ThreadPoolExecutor] = []
+
+
+def _pooled() -> ThreadPoolExecutor:
+    if not _THREADS:
+        _THREADS.append(ThreadPoolExecutor(min(PARTS, usable_cores()), thread_name_prefix="lmjx-turned"))
+    return _THREADS[0]
