@@ -312,6 +312,8 @@ def run_bench(args: argparse.Namespace) -> int:
                                             cell=0.05 if args.quick else None)  # fmt: skip
         ratios["lmjx_rollouts_vs_serial_c_mujoco"] = report["rollouts"]["speedup_states"]
     if "planner" in sections:
+        report["planner"] = bench_planner_decisions(robot, args)
+    if "scoring" in sections:
         from lmjx.bench.planner import bench_planner
         from lmjx.evaluation.trial import resolve_simulator
 
@@ -323,12 +325,12 @@ def run_bench(args: argparse.Namespace) -> int:
             counts = [8] if args.quick else ([256, 1024, 4096] if sim_name == "gpu" else [256])
         planner_map = args.planner_map or f"{robot.maps_dir}/{bench_failure(robot)}.h5"
         if Path(planner_map).exists():
-            report["planner"] = bench_planner(robot, planner_map, counts, args.repeats, sim_name)
-            report["planner"]["simulator_reason"] = why
+            report["scoring"] = bench_planner(robot, planner_map, counts, args.repeats, sim_name)
+            report["scoring"]["simulator_reason"] = why
         else:
             build = f"lmjx build-map{_robot_flag(robot)} --failure {bench_failure(robot)}"
-            report["planner"] = {"skipped": f"no map at {planner_map} (build it with: {build})"}
-        for r in report["planner"].get("rows", []):
+            report["scoring"] = {"skipped": f"no map at {planner_map} (build it with: {build})"}
+        for r in report["scoring"].get("rows", []):
             if r["simulator"] == "gpu":
                 ratios[f"gpu_greedy_scoring_{r['candidates']}_vs_c_mujoco_all_cores"] = r["speedup_vs_cpu"]
     if "agreement" in sections:
@@ -352,11 +354,18 @@ def run_bench(args: argparse.Namespace) -> int:
         _print_maps(report)
     if "rollouts" in report:
         _print_rollouts(report)
-    if "planner" in report:
-        if "skipped" in report["planner"]:
-            print(f"  Greedy scoring: skipped ({report['planner']['skipped']})")
+    if "scoring" in report:
+        if "skipped" in report["scoring"]:
+            print(f"  Greedy scoring: skipped ({report['scoring']['skipped']})")
         else:
-            _print_planner(report["planner"])
+            _print_planner(report["scoring"])
+    if "planner" in report:
+        from lmjx.bench.decisions import print_decisions
+
+        if "skipped" in report["planner"]:
+            print(f"  decisions: skipped ({report['planner']['skipped']})")
+        else:
+            print_decisions(report["planner"])
     if "agreement" in report:
         _print_agreement(report["agreement"])
     if "build" in report:
@@ -388,7 +397,30 @@ def _print_agreement(ag: dict) -> None:
         )
 
 
-SECTIONS = ("ik", "maps", "rollouts", "planner", "agreement", "build")
+SECTIONS = ("ik", "maps", "rollouts", "scoring", "planner", "agreement", "build")
+
+
+def bench_planner_decisions(robot: Robot, args: argparse.Namespace) -> dict:
+    """The planner section: whole decisions of each ASM (`lmjx.bench.decisions`) on the maps of
+    the robot's presets found in --maps (default maps/: on a CPU, `make run`'s case-2 map;
+    on a GPU, the evaluation's maps)."""
+    from lmjx.bench.decisions import bench_decisions
+    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.mapfile.read import load_map
+
+    sim_name, why = resolve_simulator(args.sim)
+    print(f"lmjx bench: simulator {sim_name} ({why})", file=sys.stderr)
+    folder = Path(args.maps or robot.maps_dir)
+    found = {f: folder / f"{f}.h5" for f in robot.profile.presets if (folder / f"{f}.h5").exists()}
+    if not found:
+        build = f"lmjx build-map{_robot_flag(robot)} --failure {bench_failure(robot)}"
+        return {"skipped": f"no map of the robot's presets in {folder} (build one with: {build})"}
+    maps = {f: load_map(p, robot) for f, p in found.items()}
+    trials = 1 if args.quick else args.decision_trials
+    report = bench_decisions(robot, maps, sim_name, trials=trials, max_actions=2 if args.quick else None,
+                             say=lambda line: print(f"lmjx bench: {line}", file=sys.stderr))  # fmt: skip
+    report["simulator_reason"] = why
+    return report
 
 
 def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:

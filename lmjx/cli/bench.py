@@ -27,8 +27,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--sections",
         default="ik,maps,rollouts,planner",
         help="what to time, comma separated: ik (lmjx vs pytorch_kinematics vs PyBullet), maps (whole "
-        "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (Greedy scoring, the GPU "
-        "simulator vs C MuJoCo on all cores; needs a map with edges), agreement (the simulator's choices "
+        "Reach-Ability maps), rollouts (edge rollouts vs serial C MuJoCo), planner (whole decisions of each ASM "
+        "in every scenario, one trial at a time: each decision's latency and where it went; needs the maps in "
+        "--maps), scoring (Greedy scoring, the GPU simulator vs C MuJoCo on all cores; needs a map with "
+        "edges), agreement (the simulator's choices "
         "against C MuJoCo's over some 200 Greedy decisions; needs --maps with case1.h5 and case2.h5), build "
         "(the user's build-map end to end, in a fresh process: seconds per stage, wall / kernel time, the "
         "preflight's error) (default: ik,maps,rollouts,planner)",
@@ -39,17 +41,23 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="build: sampled edges per timed build, comma separated (default 100000,1000000 on a GPU, 10000 on a CPU)",
     )
     p.add_argument("--failure", help="build: the failure to build (default case2 where the robot has it)")
-    p.add_argument("--maps", help="agreement: folder of the robot's preset maps (default maps, or maps/<robot>)")
+    p.add_argument(
+        "--maps", help="planner, agreement: folder of the robot's preset maps (default maps, or maps/<robot>)"
+    )
+    p.add_argument(
+        "--decision-trials", type=_positive_int, default=3, metavar="N",
+        help="planner: trials per failure, scenario and ASM (default 3; 1 with --quick)",
+    )
     p.add_argument(
         "--agreement-seeds", type=_positive_int, default=12, help="agreement: trials per failure and scenario (12)"
     )
     p.add_argument(
-        "--planner-map", help="map for the planner section (default maps/case2.h5, or maps/<robot>/case2.h5)"
+        "--planner-map", help="map for the scoring section (default maps/case2.h5, or maps/<robot>/case2.h5)"
     )
     p.add_argument(
         "--candidates",
         type=_positive_ints,
-        help="planner section: candidate counts to score, comma separated (default 256,1024,4096 with a GPU "
+        help="scoring section: candidate counts to score, comma separated (default 256,1024,4096 with a GPU "
         "simulator, 256 without; 8 with --quick)",
     )
     _add_sim(p)
