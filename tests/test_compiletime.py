@@ -15,6 +15,7 @@ import pytest
 
 from lmjx.evaluation.lockstep import _simulate
 from lmjx.planner.edge_planner import Planner, simulate_request
+from lmjx.planner.phases import PhaseClock
 from lmjx.planner.records import StepRecord
 from lmjx.planner.requests import Simulate
 from lmjx.runtime.compiletime import compile_seconds, jax_compile_seconds
@@ -63,7 +64,7 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
     sim = CompilingSim(batches)
     jax_compile_seconds()  # listening from here
     t0 = time.perf_counter()
-    steps = Planner._timed_decision(SimpleNamespace(decide=decide), None, None)
+    steps = Planner._timed_decision(SimpleNamespace(decide=decide, clock=PhaseClock()), None, None)
     req = next(steps)
     answer = _simulate(sim, {0: req})[0] if batches else simulate_request(sim, req)
     assert answer.compile_s == pytest.approx(sim.capture_seconds, abs=1e-9)
@@ -80,6 +81,7 @@ def test_compile_seconds_kept_out_of_planning(batches: bool) -> None:
     assert jax_part >= 0.1 * first_call["s"]
     assert rec.planning_s + rec.compile_s == pytest.approx(wall, abs=0.05)
     assert rec.planning_s < wall - SIM_COMPILE
+    assert rec.latency_s == rec.planning_s and rec.phase_s["compile"] == pytest.approx(rec.compile_s, abs=1e-4)
     assert rec.summary()["compile_s"] == round(rec.compile_s, 3)
     assert rec.sim_steps == 3  # what the planning limit counts: the request's control points
 
