@@ -1484,3 +1484,33 @@ def test_the_planning_limit_counts_simulated_control_steps(robot, plan_map):
     assert (stopped.stopped, stopped.reason, stopped.success, stopped.actions) == ("planning limit",) * 2 + (False, 1)
     assert stopped.sim_steps == counted == first and stopped.summary()["end"] == "planning limit"
     assert "planning limit" in ENDS and trial(first + 1)[0].sim_steps == free.sim_steps
+
+
+def test_the_real_world_steps_unwatched_as_watched(robot, plan_map):
+    """The "real" world steps an action's edge and settling in `mujoco.rollout` unless
+    something watches every step (a recorder): the same world to the bit, the solver's warm
+    start and the last step's contacts included, action after action."""
+    m = load_map(plan_map)
+    task = resolve_task(1, robot, "paper")
+    setup = setup_trial(robot, m, task, PlannerConfig(asm="random"), seed=3)
+    obs = setup.world.reset(setup.layout, setup.planner.transits.park)
+    setup.planner.transits.set_scene(task.scenario, obs.objects)
+    acts = setup.planner.transits.actions(m.edges, np.arange(m.edges.n_edges), obs.robot_q, 3)
+    assert len(acts) == 3
+    seen = []
+    for watched in (True, False):
+        world = SimulatedRealWorld(robot, 3)
+        world.reset(setup.layout, setup.planner.transits.park)
+        if watched:
+            world.on_step = lambda m_, d_: None
+        runs = []
+        for a in acts:
+            o = world.execute(a)
+            d = world.data
+            runs.append((o.objects, o.transit_contacts, o.transit_left, d.qpos, d.qvel, d.qacc_warmstart, d.time,
+                         d.contact.geom, d.ncon))  # fmt: skip
+            runs[-1] = tuple(np.array(x, copy=True) if isinstance(x, np.ndarray) else x for x in runs[-1])
+        seen.append(runs)
+    for a, b in zip(*seen, strict=True):
+        for x, y in zip(a, b, strict=True):
+            assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y

@@ -107,9 +107,11 @@ def run_trials(
         def finished(i: int, res: TrialResult, group: list[Key] = group) -> None:
             emit(trial_record(robot, config, run, group[i], res))
 
-        # a GPU answers every trial's candidates in one batch; C MuJoCo gains nothing from
-        # more trials in flight than cores, and a stopped run keeps the trials that ended
-        run_lockstep(trials, sim, finished, window=None if batched else threads)
+        # as many trials in flight as cores: their host work gains nothing from more (and each
+        # holds a decision's screening, up to a gigabyte on a map of 1,000,000 edges: 90 trials
+        # at once ran a 128 GB host out of memory), a GPU answers all their candidates in one
+        # batch, C MuJoCo uses the cores itself, and a stopped run keeps the trials that ended
+        run_lockstep(trials, sim, finished, window=threads)
 
 
 def deal(keys: list[Key], n: int) -> list[list[Key]]:

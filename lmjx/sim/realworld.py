@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 import mujoco
 import numpy as np
+from mujoco import rollout
 
 from lmjx.model.robot import Robot
 from lmjx.sim.controls import controls
@@ -106,6 +107,7 @@ class SimulatedRealWorld:
         n = len(layout.scenario.movable)
         self.scene = build_scene(self.robot, layout.scenario, real_physics(self.robot, n, self.rng))
         self.data = mujoco.MjData(self.scene.model)
+        self._scratch: mujoco.MjData | None = None  # `_roll`'s
         set_state(self.scene, self.data, robot_q, object_qpos(self.scene, layout.poses))
         for _ in range(round(0.2 / self.scene.model.opt.timestep)):  # let contacts settle
             mujoco.mj_step(self.scene.model, self.data)
@@ -165,13 +167,17 @@ class SimulatedRealWorld:
         # when it begins (the last edge ended against an object or the table) and leaves are
         # not counted; one it enters again once it has been LEAVE_CLEAR clear of it is
         ledger = TransitContacts(*self._touching())
-        for i, u in enumerate(controls(action, m.opt.timestep, self.settle)):
+        u_all = controls(action, m.opt.timestep, self.settle)
+        stepwise = len(u_all) if self.on_step is not None else min(transit, len(u_all))
+        for i, u in enumerate(u_all[:stepwise]):
             d.ctrl[:] = u
             mujoco.mj_step(m, d)
             if i < transit:
                 ledger.update(*(self._touching() if d.ncon else (set(), set())), self._clear_of(ledger.leaving))
             if self.on_step is not None:
                 self.on_step(m, d)
+        if stepwise < len(u_all):  # the edge and the settling, watched by no one: in C MuJoCo's own loop
+            self._roll(u_all[stepwise:])
         touched, hit_fixed, left = ledger.objects, ledger.fixed, ledger.left
         self.time += action.duration + self.settle
         obs = self.observe()
@@ -181,6 +187,28 @@ class SimulatedRealWorld:
         obs.transit_hit_fixed = bool(hit_fixed)
         obs.transit_left = tuple(sorted(left))
         return obs
+
+    def _roll(self, u: np.ndarray) -> None:
+        """Step the world through the controls `u` (steps, nu): all but the last in
+        `mujoco.rollout` (the same steps as mj_step one by one, from the whole physics state:
+        the same result to the bit, without the interpreter between steps), the last with
+        mj_step, which leaves the world's data as the stepwise loop does (its contacts, its
+        positions)."""
+        assert self.scene is not None and self.data is not None
+        m, d = self.scene.model, self.data
+        if len(u) > 1:
+            spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+            state = np.empty(mujoco.mj_stateSize(m, spec))
+            mujoco.mj_getState(m, d, state, spec)
+            if self._scratch is None:
+                self._scratch = mujoco.MjData(m)
+            # (the solver's warm start is no part of the physics state: given and taken back)
+            out, _ = rollout.rollout(m, self._scratch, state[None], u[None, :-1],
+                                     initial_warmstart=d.qacc_warmstart[None].copy())  # fmt: skip
+            mujoco.mj_setState(m, d, out[0, -1], spec)
+            d.qacc_warmstart[:] = self._scratch.qacc_warmstart
+        d.ctrl[:] = u[-1]
+        mujoco.mj_step(m, d)
 
     def truth(self) -> np.ndarray:
         assert self.scene is not None and self.data is not None
