@@ -6,8 +6,10 @@ trials of a scenario share its planner simulator and run side by side
 handed to `emit` as it ends.
 
 `run_in_processes` splits the trials across `n` child processes (each scenario's trials dealt
-in turn, so that every process batches a share of every scenario): child k simulates on GPU k
-(MuJoCo Warp's device and JAX's default device) and sends each record back as its trial ends;
+in turn, so that every process batches a share of every scenario): child k simulates on GPU
+k mod the GPUs (MuJoCo Warp's device and JAX's default device; several processes may share a
+GPU: a process's host work runs under its own interpreter lock), runs as many trials at once
+as the cores shared out, and sends each record back as its trial ends;
 this process receives them, in whatever order they end, and hands them to `emit`.  A trial's
 record does not depend on the process that ran it or on the trials beside it, so the records
 are those one process makes (tests/test_evaluate_processes.py).  A child's error reaches this
@@ -80,11 +82,13 @@ def run_trials(
     emit: Callable[[dict[str, Any]], None],
     gpu_config=None,
     on_group: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
 ) -> None:
     """Run the trials `keys` of `config` (an `EvalConfig`), scenario by scenario, handing each
     record to `emit` as its trial ends.  `gpu_config`: the GPU simulator's (its device);
-    `on_group(scenario, trials)` is told as each scenario's trials start."""
-    threads = usable_cores()
+    `on_group(scenario, trials)` is told as each scenario's trials start; `threads`: trials in
+    flight at once (default: the cores)."""
+    threads = threads or usable_cores()
     for s in sorted({k[1] for k in keys}):
         group = [k for k in keys if k[1] == s]
         task = config.task(s, robot)  # once per scenario: its trials share it and the simulator
@@ -144,7 +148,8 @@ def run_in_processes(
         for k, share in enumerate(shares):
             proc, to_child, from_child = start_child("lmjx.evaluation.workers", "serve", env)
             children.append((proc, to_child, from_child))
-            work = (robot, {f: str(m.path) for f, m in maps.items()}, config, run, share, k)
+            threads = max(1, usable_cores() // len(shares))  # (the cores shared out)
+            work = (robot, {f: str(m.path) for f, m in maps.items()}, config, run, share, k, threads)
             to_child.send_bytes(pickle.dumps(work))
         open_pipes = {c[2]: c for c in children}
         while open_pipes:
@@ -182,10 +187,11 @@ def serve(inbox_fd: int, outbox_fd: int) -> None:
     inbox = Connection(inbox_fd, writable=False)
     outbox = Connection(outbox_fd, readable=False)
     try:
-        robot, paths, config, run, keys, k = pickle.loads(inbox.recv_bytes())
+        robot, paths, config, run, keys, k, threads = pickle.loads(inbox.recv_bytes())
         gpu_config = _own_gpu(k) if config.backend == "gpu" else None
         maps = {f: load_map(Path(p), robot) for f, p in paths.items()}
-        run_trials(robot, maps, config, run, keys, lambda record: outbox.send(("record", record)), gpu_config)
+        run_trials(robot, maps, config, run, keys, lambda record: outbox.send(("record", record)), gpu_config,
+                   threads=threads)  # fmt: skip
         outbox.send(("done", None))
     except BaseException as e:  # (the parent raises it)
         trace = traceback.format_exc()

@@ -173,8 +173,7 @@ class Planner:
             half = float(self.sc.target.half[0])
             edges = edges_over_target(self.bundle, self.reach, target, half, cfg.target_margin)
             if cfg.futile_filter and self.futile:
-                keep = [e for e in edges if not self._futile_here((int(e), 0), target)]
-                edges = np.asarray(keep, edges.dtype)
+                edges = edges[~self._futile_here(edges, np.zeros(len(edges), np.int64), target)]
             order = rng.permutation(edges)
             bundle: Any = self.bundle
             if cfg.turn_edges:  # the map's own edges first, then turned copies (`lmjx.planner.turned`)
@@ -340,7 +339,7 @@ class Planner:
             self.bundle, self.reach, self.robot, self.failure, target, half, self.config.target_margin
         )
         if self.config.futile_filter and self.futile and len(ids):
-            keep = [not self._futile_here((int(e), _degrees(d)), target) for e, d in zip(ids, delta, strict=True)]
+            keep = ~self._futile_here(ids, np.round(np.degrees(delta)).astype(np.int64), target)
             ids, delta = ids[keep], delta[keep]
         if not len(ids):
             return self.bundle, order
@@ -356,9 +355,16 @@ class Planner:
         )
         return view, np.arange(view.n_edges)
 
-    def _futile_here(self, edge: tuple[int, int], target: np.ndarray) -> bool:
-        at = self.futile.get(edge)
-        return at is not None and float(np.hypot(*(target - at))) < self.config.futile_radius
+    def _futile_here(self, edges: np.ndarray, turns_deg: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """(len(edges),) whether each (map edge, turn in whole degrees) was executed here
+        (the target within `futile_radius` of where it was then) without bringing it closer."""
+        out = np.zeros(len(edges), bool)
+        near = [k for k, at in self.futile.items() if float(np.hypot(*(target - at))) < self.config.futile_radius]
+        if near:
+            span = 1 << 12  # (turns are whole degrees, |turn| < 2048)
+            keys = np.asarray(edges, np.int64) * span + np.asarray(turns_deg, np.int64) + span // 2
+            out = np.isin(keys, [e * span + t + span // 2 for e, t in near])
+        return out
 
     def run(self, executor: Executor, layout: Layout, seed: int) -> TrialResult:
         """One closed-loop trial, simulating and executing each request as it comes."""
