@@ -44,8 +44,8 @@ from lmjx.evaluation.agreement import (
     save_decisions,
 )
 from lmjx.evaluation.evaluate import load_maps
-from lmjx.evaluation.trial import make_simulator
 from lmjx.model.robot import load_robot
+from lmjx.planner.trial import make_simulator
 from lmjx.runtime.fileio import write_text_atomic
 from lmjx.sim.scenarios import resolve_task
 

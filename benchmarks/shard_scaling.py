@@ -19,8 +19,8 @@ import time
 import jax
 import numpy as np
 
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.sampling import TRAJECTORIES, EdgeKernels, sample_edges
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.model.robot import load_robot
 from lmjx.reach.reachability import reach_config, reach_map
 

@@ -1,4 +1,4 @@
-"""Make sure a map's push counts (`lmjx.planner.pushfield`, what `--push-weight` weighs the
+"""Make sure a map's push counts (`lmjx.mapfile.pushmap`, what `--push-weight` weighs the
 score by) are at hand for the scenarios of a task set, and say where each came from.
 
 A map built by this lmjx stores the counts of its robot's built-in scenarios, both task sets
@@ -6,7 +6,7 @@ A map built by this lmjx stores the counts of its robot's built-in scenarios, bo
 the planner reads them and this tool reports "stored in the map".  A map of schema version 2,
 or one used on another platform (its counts' key holds JAX's platform: a map built on a GPU,
 planned with JAX_PLATFORMS=cpu), has them computed on first use and kept in lmjx's cache
-folder (`lmjx.planner.pushfield.cached_counts`); an evaluation started as dozens of processes
+folder (`lmjx.mapfile.pushmap.cached_counts`); an evaluation started as dozens of processes
 at once would compute them side by side, so run this first, on the platform the evaluation
 runs on, and they all find them there ("computed", then "read from the cache folder"):
 
@@ -49,8 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     configure()  # lmjx's cache folder, as `lmjx plan` has it (before JAX starts): compiled programs, counts
     import numpy as np
 
+    from lmjx.mapfile.pushmap import HEIGHT, bundle_samples, counts_for, counts_key, scenario_counts, scenario_field
     from lmjx.mapfile.read import load_map
-    from lmjx.planner.pushfield import HEIGHT, bundle_samples, counts_for, counts_key, scenario_counts, scenario_field
     from lmjx.runtime.batching import backend
 
     try:

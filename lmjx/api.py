@@ -6,7 +6,7 @@ bundle, paper Algorithms 1-2) and `plan_task` runs one task closed loop on a map
 spec such as 'case2' or 'J2=0.3,J4=-1.5') and returns a result with a one-line `repr` and
 the command's `--json` summary (`summary()`).  They print nothing (progress bars on stderr
 only with progress=True) and raise `LmjxError` for a user's mistake.  This module only
-wires the library together: the work is in `lmjx.edges.stream` and `lmjx.evaluation.trial`.
+wires the library together: the work is in `lmjx.edges.stream` and `lmjx.planner.trial`.
 """
 
 from __future__ import annotations
@@ -155,8 +155,8 @@ def build_map(
     >>> b.edges["edges_valid"] > 0
     True
     """
-    from lmjx.edges.bundle import BundleConfig
     from lmjx.edges.stream import build_map as stream_map
+    from lmjx.mapfile.bundle import BundleConfig
     from lmjx.reach.reachability import reach_config
 
     seed = checks.seed(seed)
@@ -321,8 +321,8 @@ def plan_task(
     >>> r.actions <= 2 and len(r.steps) >= r.actions
     True
     """
-    from lmjx.evaluation.levers import check_levers, planner_config, read_levers
-    from lmjx.evaluation.trial import SIMULATORS, check_task, resolve_simulator, run_trial, setup_trial
+    from lmjx.planner.levers import check_levers, planner_config, read_levers
+    from lmjx.planner.trial import SIMULATORS, check_task, resolve_simulator, run_trial, setup_trial
     from lmjx.runtime.fileio import check_writable
     from lmjx.sim.scenarios import resolve_task
     from lmjx.sim.scenecheck import check_goal

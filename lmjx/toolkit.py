@@ -6,7 +6,7 @@ a scene (`load_scene`) and an executor (`lmjx.types.Executor`; the simulated "re
 edges and lmjx does the rest; docs/API.md has an example of each.
 
 These wrap what lmjx's own planner uses (`lmjx.planner.transit.TransitPlanner`,
-`lmjx.evaluation.trial.make_simulator`), each made once per map or scene and kept, so that
+`lmjx.planner.trial.make_simulator`), each made once per map or scene and kept, so that
 calling them decision after decision costs what the planner's calls cost.  Nothing here
 chooses actions.
 """
@@ -89,7 +89,7 @@ def _objects(task: Task, objects: np.ndarray | None) -> np.ndarray:
 
 
 def _check(robot: Robot, task: Task) -> None:
-    from lmjx.evaluation.trial import check_task
+    from lmjx.planner.trial import check_task
 
     check_task(robot, task)
 
@@ -148,8 +148,8 @@ def simulate(
     tracks its joint targets ("robot": the robot's own servo gains and torque limits, the
     planner's default; "playback").  The simulator is the planner's (nominal physics: the
     scene's masses and frictions, never the "real" world's), made once per scene and kept."""
-    from lmjx.evaluation.trial import make_simulator, resolve_simulator
     from lmjx.model.robot import load_robot
+    from lmjx.planner.trial import make_simulator, resolve_simulator
 
     backend, _ = resolve_simulator(sim)
     key = (scene, backend, servo)

@@ -125,7 +125,7 @@ OPTIONS_NEAR = 0.8  # when_stuck="options": candidates with at least this share 
 def _lever(default: object, meaning: str, **bounds: object) -> Any:
     """A PlannerConfig field: its default, what it means (`lmjx plan --help-levers`,
     docs/PLANNER.md) and the values it takes (`choices`, `least`, `above` and `most`: checked
-    where users set it, `lmjx.evaluation.levers`)."""
+    where users set it, `lmjx.planner.levers`)."""
     return field(default=default, metadata={"meaning": meaning, **bounds})
 
 
@@ -133,7 +133,7 @@ def _lever(default: object, meaning: str, **bounds: object) -> Any:
 class PlannerConfig:
     """The planner's settings (Algorithm 3): the action selection mechanism and every lever of
     it, with its default and meaning.  The commands take the levers as keys of this class
-    (`--set KEY=VALUE`, `--planner-config FILE`: `lmjx.evaluation.levers`); `settings()` is
+    (`--set KEY=VALUE`, `--planner-config FILE`: `lmjx.planner.levers`); `settings()` is
     what the results record of them."""
 
     asm: str = _lever("greedy", "the action selection mechanism (--asm, --asms)", choices=ASMS)

@@ -311,13 +311,13 @@ def plan_map(tmp_path_factory, table1: Maps) -> Path:
 def _programs_ahead() -> list[Callable[[], None]]:
     """What `_compile_ahead` compiles, in about the order the tests first need it: the
     programs (ChunkedKernel keys) the tests and the commands they run build themselves."""
-    from lmjx.edges.bundle import BundleConfig
     from lmjx.edges.sampling import rollout_kernel
+    from lmjx.mapfile.bundle import BundleConfig
+    from lmjx.mapfile.pushsamples import compile_program
     from lmjx.model.failure import parse_failure
     from lmjx.model.robot import load_robot
-    from lmjx.planner.clearance import clearance_kernel
-    from lmjx.planner.pushsamples import compile_program
     from lmjx.reach.reachability import attempt_plan, reach_config
+    from lmjx.sim.sceneboxes import clearance_kernel
 
     panda, ur, tiny = load_robot("panda"), load_robot("ur5e"), load_robot(str(TINY_ARM))
     config = BundleConfig()

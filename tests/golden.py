@@ -50,9 +50,9 @@ def map_figures(path: str) -> dict:
 
 
 def trial_figures(path: str) -> dict:
-    from lmjx.evaluation.trial import run_trial, setup_trial
     from lmjx.mapfile.read import load_map
     from lmjx.model.robot import load_robot
+    from lmjx.planner.trial import run_trial, setup_trial
     from lmjx.sim.scenarios import resolve_task
     from lmjx.types import PlannerConfig
 

@@ -1,5 +1,5 @@
 """The push pairs as the planner first computed them, kept as the reference the two-stage
-computation (`lmjx.planner.pushfield.push_pairs`) must equal exactly: every state of every
+computation (`lmjx.mapfile.pushmap.push_pairs`) must equal exactly: every state of every
 edge whose start is clear of the fixed obstacles through the capsule-ends kernel, the cut
 at a fixed obstacle on every state, then the tests of `push_pairs` and `np.unique`."""
 
@@ -9,16 +9,16 @@ import math
 
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
 from lmjx.edges.index import capsule_ends_kernel
+from lmjx.mapfile.bundle import Bundle
+from lmjx.mapfile.pushmap import HEIGHT, MAX_ANGLE, far_objects
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
-from lmjx.planner.clearance import EDGE_BOXES, MIN_EDGE_STATES, box_kernel, cut_at_fixed
-from lmjx.planner.goalfield import GoalField
-from lmjx.planner.pushfield import HEIGHT, MAX_ANGLE, far_objects
 from lmjx.planner.transit import TransitPlanner
 from lmjx.reach.reachability import ReachResult
+from lmjx.sim.goalfield import GoalField
 from lmjx.sim.scenarios import Scenario
+from lmjx.sim.sceneboxes import EDGE_BOXES, MIN_EDGE_STATES, box_kernel, cut_at_fixed
 
 STATES_PER_CALL = 200_000  # edge states read and checked per pass
 

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
-from lmjx.planner.clearance import EDGE_BOXES, FIXED_MARGIN, MIN_EDGE_STATES, box_kernel, cut_at_fixed
+from lmjx.mapfile.bundle import Bundle
 from lmjx.planner.timelaw import retime
 from lmjx.planner.transit import (
     ACT_DEPTH,
@@ -23,6 +22,7 @@ from lmjx.planner.transit import (
     transit_velocities,
 )
 from lmjx.planner.turned import TurnedEdges
+from lmjx.sim.sceneboxes import EDGE_BOXES, FIXED_MARGIN, MIN_EDGE_STATES, box_kernel, cut_at_fixed
 from lmjx.types import CONTROL_DT, Action
 
 

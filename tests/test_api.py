@@ -57,7 +57,7 @@ def test_names_and_objects_that_do_not_fit_are_refused(robot):
 
 
 def test_reprs_are_one_short_line(robot, tiny_case2, small_map):
-    from lmjx.edges.bundle import BundleConfig
+    from lmjx.mapfile.bundle import BundleConfig
     from lmjx.types import PlannerConfig
 
     with lmjx.load_map(small_map) as m:

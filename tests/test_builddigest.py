@@ -17,8 +17,8 @@ import pytest
 from conftest import TINY_MAP, cli
 
 from lmjx.edges import chunkfile, mapappend
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import EdgeChunk
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.digest import content_digest, stored_digest
 from lmjx.mapfile.write import IndexGrid, edges_group
 

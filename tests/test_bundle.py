@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from kernels.rollout import REASONS, Limits
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import build_bundle
 from lmjx.edges.rollout_ref import ReferenceRollout
 from lmjx.edges.sampling import rollout_kernel
 from lmjx.errors import ConfigError
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.read import load_map
 from lmjx.model.failure import parse_failure
 from lmjx.reach.reachability import attempt_plan

@@ -145,7 +145,7 @@ def _levers_config(command: str, asm: str, sim: str, *args: str):
     """The PlannerConfig the command line `args` of `command` gives (parsed, not run)."""
     from lmjx.cli import build_parser
     from lmjx.cli.plan import planner_levers
-    from lmjx.evaluation.levers import planner_config
+    from lmjx.planner.levers import planner_config
 
     base = (
         ["plan", "--map", "m.h5", "--scenario", "1", "--asm", asm] if command == "plan" else ["evaluate", "--out", "e"]
@@ -158,7 +158,7 @@ def test_plan_and_evaluate_help_fits_a_screen(command):
     """Everyday options in --help (at most 60 lines on an 80-column terminal); the levers
     listed by --help-levers, each with its default; the options that moved not shown."""
     from lmjx.cli.plan import MOVED
-    from lmjx.evaluation.levers import keys
+    from lmjx.planner.levers import keys
 
     r = cli(command, "--help", env={"COLUMNS": "80"}).ok()
     assert len(r.stdout.splitlines()) <= 60, r.stdout

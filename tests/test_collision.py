@@ -238,10 +238,10 @@ def test_box_lower_bound_against_numpy_and_the_exact_clearance(robot):
     (`boxes_clearance`) at random configurations of scenario 3's twelve boxes."""
     from lmjx.edges.index import capsule_ends_kernel
     from lmjx.model.failure import parse_failure
-    from lmjx.planner.clearance import BOUND_SLACK
     from lmjx.planner.transit import TransitPlanner
     from lmjx.sim.scenarios import sample_layout, scenario
     from lmjx.sim.scene import build_scene, object_qpos
+    from lmjx.sim.sceneboxes import BOUND_SLACK
 
     sc = scenario(3, tasks="hard")
     objects = object_qpos(build_scene(robot, sc), sample_layout(sc, 4).poses)

@@ -20,10 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import lmjx.edges.bundle
+import lmjx.mapfile.bundle
 import lmjx.reach.ik_batch
 import lmjx.runtime.batching
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.compiling import (
     BackgroundCompile,
     InterruptedAfterMap,
@@ -33,6 +32,7 @@ from lmjx.edges.compiling import (
     preset_record,
 )
 from lmjx.edges.sampling import EdgeKernels, launch_sizes
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.model.failure import parse_failure
 from lmjx.reach.reachability import reach_config, reach_ik
 from lmjx.runtime.batching import ChunkedKernel
@@ -45,7 +45,7 @@ IK_LAUNCH_GPU = 1 << 19  # IK problems per launch on an accelerator (default_chu
 @pytest.fixture
 def accelerator(monkeypatch):
     """The platform seen as an accelerator by the functions that size and configure programs."""
-    for module in (lmjx.edges.bundle, lmjx.reach.ik_batch, lmjx.runtime.batching):
+    for module in (lmjx.mapfile.bundle, lmjx.reach.ik_batch, lmjx.runtime.batching):
         monkeypatch.setattr(module, "backend", lambda: "gpu")
 
 

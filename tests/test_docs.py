@@ -252,7 +252,7 @@ def test_planner_page_lists_every_lever() -> None:
     from dataclasses import fields
 
     from lmjx.cli.plan import MOVED
-    from lmjx.evaluation.levers import keys, toml_text
+    from lmjx.planner.levers import keys, toml_text
     from lmjx.types import PlannerConfig
 
     text = (ROOT / "docs" / "PLANNER.md").read_text()

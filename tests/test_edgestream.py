@@ -22,9 +22,9 @@ import pytest
 from conftest import TINY_ARM, TINY_MAP, Collected, cli, cli_process, finish, wait_for
 
 from lmjx.edges import chunkfile
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import build_bundle
 from lmjx.edges.stream import missing_ranges, preflight
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_map
 from lmjx.reach.reachability import ReachConfig
@@ -393,8 +393,8 @@ def test_a_peer_process_saves_the_chunks_and_push_counts_this_process_computes(t
     from lmjx.edges.chunk import chunk_ranges, pack_chunk
     from lmjx.edges.peers import PeerPrograms, Peers, PeerWork
     from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, split_rolled
+    from lmjx.mapfile.pushbuild import BuildPushCounts
     from lmjx.model.robot import load_robot
-    from lmjx.planner.pushbuild import BuildPushCounts
 
     robot = load_robot(str(TINY_ARM))
     m = load_map(tiny_map, robot)

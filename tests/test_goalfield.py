@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from lmjx.planner.goalfield import GoalField
+from lmjx.sim.goalfield import GoalField
 from lmjx.sim.scenarios import scenario
 
 LO, HI = np.array([-0.5, -1.1]), np.array([1.2, 1.1])

@@ -15,9 +15,10 @@ import pytest
 from conftest import TINY_ARM, cli
 from reference_index import reference_pairs, reference_pairs_of_ends
 
-from lmjx.edges.index import Grid, arm_index, arm_index_pairs, index_devices, index_totals
+from lmjx.edges.index import Grid, arm_index, arm_index_pairs, index_totals
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import load_robot
+from lmjx.runtime.devices import index_devices
 
 SMALL_GRID = (0.05, 20, 24)  # the shared case-2 map's cell and size (conftest.SMALL_MAP)
 HEIGHT = 0.05  # the maps' index height (BundleConfig.index_height)

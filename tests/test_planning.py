@@ -14,18 +14,19 @@ import pytest
 from conftest import cli
 
 from lmjx.evaluation.results import trials_of
-from lmjx.evaluation.trial import run_trial, setup_trial
 from lmjx.mapfile.read import load_map
 from lmjx.model.failure import parse_failure
-from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, MIN_EDGE_STATES, OBJECT_MARGIN, park_pose
+from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, park_pose
 from lmjx.planner.records import ENDS
 from lmjx.planner.scoring import score
 from lmjx.planner.transit import TransitPlanner
+from lmjx.planner.trial import run_trial, setup_trial
 from lmjx.sim.controls import controls
 from lmjx.sim.cpu import CpuSimulator
 from lmjx.sim.realworld import LEAVE_CLEAR, SimulatedRealWorld, TransitContacts, real_physics
 from lmjx.sim.scenarios import in_goal, resolve_task, sample_layout, scenario
 from lmjx.sim.scene import build_scene, object_qpos, read_objects, set_state
+from lmjx.sim.sceneboxes import MIN_EDGE_STATES, OBJECT_MARGIN
 from lmjx.types import CONTROL_DT, PlannerConfig
 
 
@@ -346,8 +347,8 @@ def test_lockstep_trials_equal_trials_run_alone(robot, plan_map):
     the CPU builds its tries one at a time, waiting for each simulation while the other trials
     compute: each try must still be checked against its own trial's scene."""
     from lmjx.evaluation.lockstep import run_lockstep
-    from lmjx.evaluation.trial import make_simulator
     from lmjx.planner.transit import TransitPlanner
+    from lmjx.planner.trial import make_simulator
 
     m = load_map(plan_map)
     sim = make_simulator(robot, resolve_task(1, robot, "hard"), "cpu")
@@ -534,7 +535,7 @@ def test_greedy_rescores_its_best_candidates_over_redrawn_observations(robot, pl
 
 
 def test_simulator_choice_is_said_and_refused_in_one_line(small_map):
-    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.planner.trial import resolve_simulator
     from lmjx.sim.gpu import warp_problem
 
     if warp_problem() is not None:
@@ -574,9 +575,9 @@ def test_transits_keep_clear_of_the_scene(robot, plan_map, number):
     FIXED_MARGIN from a fixed obstacle too (an edge is cut short before its first state that
     does not, and kept only with MIN_EDGE_STATES states left); edges whose start lies against
     an object are not offered; acting edges act within their executed states."""
-    from lmjx.planner.clearance import FIXED_MARGIN, OBJECT_MARGIN
     from lmjx.planner.edge_planner import edges_over_target
     from lmjx.planner.transit import ACT_DEPTH
+    from lmjx.sim.sceneboxes import FIXED_MARGIN, OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(number, tasks="hard")
@@ -627,9 +628,9 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
     is the edge's own states from there, FIXED_MARGIN clear of the fixed obstacles, and the
     transit keeps every margin.  Edges offered without the option are offered alike with it;
     no edge whose start is blocked by a movable object alone is entered late."""
-    from lmjx.planner.clearance import FIXED_MARGIN, OBJECT_MARGIN
     from lmjx.planner.edge_planner import edges_over_target
     from lmjx.planner.transit import LATE_TRIES
+    from lmjx.sim.sceneboxes import FIXED_MARGIN, OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(2, tasks="hard")
@@ -679,7 +680,7 @@ def test_the_agreement_tests_decisions_offer_the_planners_candidates(robot, plan
     push) each candidate's edge starts OBJECT_MARGIN clear of the objects where they were
     observed, and from the park pose its whole transit does (C MuJoCo's mj_geomDistance)."""
     from lmjx.evaluation.agreement import decision_states
-    from lmjx.planner.clearance import OBJECT_MARGIN
+    from lmjx.sim.sceneboxes import OBJECT_MARGIN
 
     m = load_map(plan_map)
     decisions = decision_states(robot, {"case2": m}, (1,), 1, 2, 16, first_seed=5)
@@ -755,9 +756,10 @@ def test_after_a_push_transits_back_out_along_the_edge(robot, plan_map):
     arm's clearance to the scene (C MuJoCo's mj_geomDistance, objects where the "real" world
     was observed after the push) never falls more than LEAVE_TOLERANCE below where it stood,
     and which ends RETREAT_SLACK outside every margin."""
-    from lmjx.planner.clearance import LEAVE_TOLERANCE, OBJECT_MARGIN
+    from lmjx.planner.clearance import LEAVE_TOLERANCE
     from lmjx.planner.edge_planner import edges_over_target
     from lmjx.planner.escape import RETREAT_SLACK
+    from lmjx.sim.sceneboxes import OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -814,8 +816,8 @@ def paired_decisions(
     from the defaults.  (Why 30 starts: at 15 a single pair decided the test, 12 wins to 3,
     p = 0.018, with rescoring on; over 40 starts rescoring on and off both win 29 to 4.)
     Greedy simulates with its servo model (`PlannerConfig.servo`, "robot" by default)."""
-    from lmjx.evaluation.trial import planner_physics
     from lmjx.planner.edge_planner import Planner
+    from lmjx.planner.trial import planner_physics
 
     m = load_map(small_map)
     transits = TransitPlanner(robot, m.failure)
@@ -884,7 +886,8 @@ def test_a_blocked_way_to_park_goes_around_the_objects(robot, plan_map):
     at the park pose and keeps its margin from every movable object at every control step,
     by C MuJoCo's mj_geomDistance; the table and the arm itself stay clear too (C MuJoCo's
     contacts)."""
-    from lmjx.planner.clearance import JAM_MARGIN, OBJECT_MARGIN
+    from lmjx.planner.clearance import JAM_MARGIN
+    from lmjx.sim.sceneboxes import OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -924,7 +927,7 @@ def _cube_between_two_starts(robot, plan_map):
     asserts that a path from q0 keeps OBJECT_MARGIN from the cube at every control step by C
     MuJoCo's mj_geomDistance, touches neither the table nor the arm itself (C MuJoCo's
     contacts) and moves no joint faster than the transits' speed."""
-    from lmjx.planner.clearance import OBJECT_MARGIN
+    from lmjx.sim.sceneboxes import OBJECT_MARGIN
 
     m = load_map(plan_map)
     sc = scenario(1, tasks="hard")
@@ -1225,7 +1228,7 @@ def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(rob
     """A scene of up to EDGE_BOXES boxes (the tunnel: the target and three fixed boxes) is
     checked by the 4-box clearance program the edges use, not the MAX_BOXES one: the same
     clearances, to float32 rounding, for configurations spanning several chunks."""
-    from lmjx.planner.clearance import EDGE_BOXES, MAX_BOXES, box_kernel, box_slots
+    from lmjx.sim.sceneboxes import EDGE_BOXES, MAX_BOXES, box_kernel, box_slots
 
     assert box_slots(EDGE_BOXES) == EDGE_BOXES and box_slots(EDGE_BOXES + 1) == MAX_BOXES
     m = load_map(plan_map)
@@ -1247,9 +1250,9 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
     pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
     angle only adds pairs; the planner's weighted score at least the path length, kept with
     the map."""
-    from lmjx.planner.goalfield import GoalField
-    from lmjx.planner.pushfield import far_objects, push_counts, push_pairs
+    from lmjx.mapfile.pushmap import far_objects, push_counts, push_pairs
     from lmjx.planner.scoring import table_bounds
+    from lmjx.sim.goalfield import GoalField
 
     m = load_map(plan_map)
     b, reach = m.edges, m.reach
@@ -1328,8 +1331,8 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     import dataclasses
 
     from lmjx.planner import pushfield
-    from lmjx.planner.goalfield import GoalField
     from lmjx.planner.scoring import _score_field, table_bounds
+    from lmjx.sim.goalfield import GoalField
 
     monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path))
     m = load_map(plan_map)
@@ -1412,7 +1415,7 @@ def test_the_planner_can_simulate_the_robots_own_servos(robot, small_map):
     from dataclasses import replace
 
     from lmjx.bench.planner import candidate_actions
-    from lmjx.evaluation.trial import make_simulator
+    from lmjx.planner.trial import make_simulator
 
     _mf, sc, _scene, objects, tp, acts = candidate_actions(robot, str(small_map), 3, 6, 0, planner_scene=False)
     drawn = real_physics(robot, len(sc.movable), np.random.default_rng(0))
@@ -1462,7 +1465,7 @@ def test_the_planning_limit_counts_simulated_control_steps(robot, plan_map):
     Wall-clock planning time is recorded and stops nothing."""
     from dataclasses import replace
 
-    from lmjx.evaluation.trial import make_simulator
+    from lmjx.planner.trial import make_simulator
 
     m = load_map(plan_map, robot=robot)
     task = resolve_task(1, robot, "hard")

@@ -1,4 +1,4 @@
-"""The push counts (`lmjx.planner.pushfield`): the two-stage computation gives the pairs of the
+"""The push counts (`lmjx.mapfile.pushmap`): the two-stage computation gives the pairs of the
 reference (tests/reference_pushfield.py: every state of every edge through the kernels)
 exactly, on the planner's map and on edges built to hit its corner cases; its device program
 against the capsule kernel and C MuJoCo; a built map stores the counts of the robot's
@@ -25,10 +25,11 @@ from lmjx.mapfile.digest import content_digest
 from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_map
 from lmjx.planner import pushfield, pushsamples
-from lmjx.planner.clearance import MIN_EDGE_STATES, park_pose
+from lmjx.planner.clearance import park_pose
 from lmjx.planner.scoring import _score_field
 from lmjx.planner.transit import TransitPlanner
 from lmjx.sim.scenarios import SCENARIOS, TASK_SETS, scenario
+from lmjx.sim.sceneboxes import MIN_EDGE_STATES
 from lmjx.types import PlannerConfig
 
 LOW_TOL = 2e-5  # [m] float32 kinematics against C MuJoCo's float64
@@ -245,7 +246,7 @@ import jax
 import numpy as np
 from lmjx.mapfile.read import load_map
 from lmjx.planner import pushsamples
-from lmjx.planner.pushfield import HEIGHT
+from lmjx.mapfile.pushmap import HEIGHT
 
 m = load_map(sys.argv[1], lazy=False)
 seen = []

@@ -95,8 +95,8 @@ def test_the_decision_measure_rescores_as_greedy_does(robot, plan_map):
     "playback" servo measured against the "robot" servo it stands in for does not (its target
     ends differ), so the measurement sees what the servo changes."""
     from lmjx.evaluation.agreement import RESCORE, decision_states, measure, planner_fields
-    from lmjx.evaluation.trial import make_simulator
     from lmjx.mapfile.read import load_map
+    from lmjx.planner.trial import make_simulator
 
     m = load_map(plan_map)
     decisions = decision_states(robot, {"case2": m}, (1,), 1, 1, 16, first_seed=5)  # one decision: seconds
@@ -169,7 +169,7 @@ def candidates(robot, small_map):
 def test_gpu_simulator_matches_c_mujoco(robot, candidates, servo):
     """Both servo models (`PlannerConfig.servo`): "robot" limits each joint's torque
     (`jnt_actfrcrange`) and tracks with the robot's softer gains."""
-    from lmjx.evaluation.trial import planner_physics
+    from lmjx.planner.trial import planner_physics
 
     sc, scene, objects, q0, acts = candidates
     physics = planner_physics(robot, servo)
@@ -234,12 +234,12 @@ def test_gpu_simulator_agreement_with_c_mujoco_over_200_decisions(robot, tmp_pat
     them here.  LMJX_TEST_REPORT: write the figures there (JSON)."""
     from lmjx.evaluation.agreement import load_decisions, out_of_sample
     from lmjx.evaluation.evaluate import load_maps
-    from lmjx.evaluation.trial import make_simulator
+    from lmjx.planner.trial import make_simulator
 
     folder = Path(os.environ.get("LMJX_TEST_MAPS", tmp_path))
     if "LMJX_TEST_MAPS" not in os.environ:
-        from lmjx.edges.bundle import BundleConfig
         from lmjx.edges.chunk import build_bundle
+        from lmjx.mapfile.bundle import BundleConfig
         from lmjx.mapfile.write import write_map
         from lmjx.reach.reachability import ReachConfig, reach_map
 

@@ -10,11 +10,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.sampling import rollout_kernel
-from lmjx.evaluation.trial import setup_trial
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.read import load_map
 from lmjx.planner.edge_planner import edges_over_target
+from lmjx.planner.trial import setup_trial
 from lmjx.planner.turned import TurnedEdges, turn_axis, turn_xy
 from lmjx.reach.reachability import attempt_plan, reach_config
 from lmjx.sim.scenarios import resolve_task

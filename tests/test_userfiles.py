@@ -298,7 +298,7 @@ def test_bad_numbers_leave_no_file_or_folder(args, message, tmp_path, monkeypatc
 
 def test_evaluate_makes_its_folder_once_everything_is_checked(small_map, tmp_path):
     """A simulator that cannot run here is refused after the maps are read, before --out is made."""
-    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.planner.trial import resolve_simulator
 
     try:
         resolve_simulator("gpu")

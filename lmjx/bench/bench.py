@@ -198,9 +198,9 @@ def bench_rollouts(robot: Robot, edges: int, reference_edges: int, repeats: int,
     """Edge rollouts (case 2, the default edge settings) against the serial C MuJoCo loop
     doing the same computation and checks on the first `reference_edges` of the same edges
     (their starts drawn over a reach map of `cell` cells, the default when None)."""
-    from lmjx.edges.bundle import BundleConfig
     from lmjx.edges.rollout_ref import ReferenceRollout
     from lmjx.edges.sampling import EdgeKernels, roll_out, sample_edges
+    from lmjx.mapfile.bundle import BundleConfig
 
     failure = bench_failure(robot)
     reach = reach_map(failure, reach_config(robot, cell=cell) if cell else reach_config(robot), robot=robot)
@@ -315,7 +315,7 @@ def run_bench(args: argparse.Namespace) -> int:
         report["planner"] = bench_planner_decisions(robot, args)
     if "scoring" in sections:
         from lmjx.bench.planner import bench_planner
-        from lmjx.evaluation.trial import resolve_simulator
+        from lmjx.planner.trial import resolve_simulator
 
         sim_name, why = resolve_simulator(args.sim)
         print(f"lmjx bench: simulator {sim_name} ({why})", file=sys.stderr)
@@ -405,8 +405,8 @@ def bench_planner_decisions(robot: Robot, args: argparse.Namespace) -> dict:
     the robot's presets found in --maps (default maps/: on a CPU, `make run`'s case-2 map;
     on a GPU, the evaluation's maps)."""
     from lmjx.bench.decisions import bench_decisions
-    from lmjx.evaluation.trial import resolve_simulator
     from lmjx.mapfile.read import load_map
+    from lmjx.planner.trial import resolve_simulator
 
     sim_name, why = resolve_simulator(args.sim)
     print(f"lmjx bench: simulator {sim_name} ({why})", file=sys.stderr)
@@ -427,7 +427,7 @@ def bench_agreement(robot: Robot, args: argparse.Namespace) -> dict:
     """The planner's decisions with the tested simulator against C MuJoCo's (lmjx.evaluation.agreement)."""
     from lmjx.evaluation.agreement import decision_states, measure
     from lmjx.evaluation.evaluate import load_maps
-    from lmjx.evaluation.trial import make_simulator, resolve_simulator
+    from lmjx.planner.trial import make_simulator, resolve_simulator
     from lmjx.sim.scenarios import resolve_task
 
     sim_name, why = resolve_simulator(args.sim)

@@ -19,11 +19,11 @@ from collections.abc import Callable
 import numpy as np
 
 from lmjx.evaluation.evaluate import trial_seed
-from lmjx.evaluation.levers import planner_config
-from lmjx.evaluation.trial import make_simulator, run_trial, setup_trial
 from lmjx.mapfile.read import MapFile
 from lmjx.model.robot import Robot
+from lmjx.planner.levers import planner_config
 from lmjx.planner.phases import PHASES
+from lmjx.planner.trial import make_simulator, run_trial, setup_trial
 from lmjx.sim.scenarios import resolve_task
 from lmjx.types import ASMS
 

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from lmjx.errors import ConfigError
-from lmjx.evaluation.trial import DEFAULT_CANDIDATES, make_simulator
 from lmjx.mapfile.read import load_map
 from lmjx.model.robot import Robot
 from lmjx.planner.edge_planner import Planner, edges_over_target
 from lmjx.planner.scoring import score
 from lmjx.planner.transit import TransitPlanner
+from lmjx.planner.trial import DEFAULT_CANDIDATES, make_simulator
 from lmjx.runtime.cores import usable_cores
 from lmjx.sim.cpu import CpuSimulator
 from lmjx.sim.scenarios import resolve_task, sample_layout, scenario

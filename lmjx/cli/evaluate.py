@@ -151,10 +151,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         report_markdown,
         summarize,
     )
-    from lmjx.evaluation.levers import planner_config
     from lmjx.evaluation.provenance import simulator_description
     from lmjx.evaluation.stats import rate_text
-    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.planner.levers import planner_config
+    from lmjx.planner.trial import resolve_simulator
     from lmjx.runtime.fileio import check_writable, write_text_atomic
     from lmjx.sim.scenecheck import check_goal
 

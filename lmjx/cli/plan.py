@@ -1,7 +1,7 @@
 """`lmjx plan`: one manipulation task with simulation in the loop (paper Algorithm 3); and the
 planner's options `lmjx evaluate` shares: the everyday ones, and the planner's levers, given as
 keys of its configuration (`--planner-config FILE`, `--set KEY=VALUE`, `--help-levers`:
-`lmjx.evaluation.levers`).  The options that each set one lever (`MOVED`) are accepted, hidden
+`lmjx.planner.levers`).  The options that each set one lever (`MOVED`) are accepted, hidden
 from --help, and say in one line on stderr which key they set."""
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ class _HelpLevers(argparse.Action):
                  option_string: str | None = None) -> None:  # fmt: skip
         import os
 
-        from lmjx.evaluation.levers import levers_text
+        from lmjx.planner.levers import levers_text
 
         try:
             print(levers_text(), flush=True)
@@ -125,7 +125,7 @@ def _text(value: Any) -> str:
 def planner_levers(args: argparse.Namespace) -> dict[str, Any]:
     """The levers the command line gives: --planner-config's, then --set's, then the moved
     options' and --max-actions and --candidates (each of these wins over what came before)."""
-    from lmjx.evaluation.levers import parse_sets, read_levers
+    from lmjx.planner.levers import parse_sets, read_levers
 
     levers = read_levers(args.planner_config) if args.planner_config else {}
     levers |= parse_sets(args.set)
@@ -159,7 +159,7 @@ def task_set(args: argparse.Namespace, scenes: bool) -> str:
 
 def _resolve_sim(args: argparse.Namespace) -> tuple[str, str]:
     """The planner's simulator for --sim, announced on stderr."""
-    from lmjx.evaluation.trial import resolve_simulator
+    from lmjx.planner.trial import resolve_simulator
 
     name, why = resolve_simulator(args.sim)
     print(f"lmjx {args.command}: simulator {name} ({why})", file=sys.stderr)

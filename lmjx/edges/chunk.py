@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from kernels.rollout import REASONS
-from lmjx.edges.bundle import Bundle, BundleConfig, reasons
 from lmjx.edges.index import arm_index_pairs, csr
 from lmjx.edges.sampling import EdgeKernels, EdgeSamples, roll_out, sample_edges
+from lmjx.mapfile.bundle import Bundle, BundleConfig, reasons
 from lmjx.model.robot import Robot, load_robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import device_description

@@ -37,8 +37,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.sampling import EdgeKernels
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.model.failure import Failure, parse_failure
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachConfig, reach_ik

@@ -16,7 +16,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from lmjx import __version__
-from lmjx.edges.bundle import BundleConfig
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, attr_str, config_from_attrs
 from lmjx.model.failure import Failure

@@ -36,7 +36,6 @@ passes and one window; 1,000,000 edges about 390 passes (10 G cell tests) and 16
 from __future__ import annotations
 
 import collections
-import contextlib
 import math
 import threading
 import time
@@ -51,6 +50,7 @@ from lmjx.edges.index_settle import merge_groups, settle_items
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import ChunkedKernel, backend
+from lmjx.runtime.devices import index_devices, next_device
 
 # The states whose largest low capsule sets how many cells around a sample the index looks
 # at (the index's definition; only a borderline item can tell the difference).
@@ -458,7 +458,6 @@ class _Run:
 
 _INDEXES: dict[tuple, ArmIndex] = {}
 _INDEXES_LOCK = threading.Lock()
-_TURN: dict[str, int] = {}  # round robin over the local devices, a turn per kind of work
 
 
 def arm_index(robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | None = None) -> ArmIndex:
@@ -468,48 +467,6 @@ def arm_index(robot: Robot, nx: int, ny: int, cell: float, device: jax.Device | 
         if key not in _INDEXES:
             _INDEXES[key] = ArmIndex(robot, nx, ny, cell, device)
         return _INDEXES[key]
-
-
-_OWN: list[jax.Device | None] = []  # the devices `own_device` set, innermost last
-
-
-@contextlib.contextmanager
-def own_device(device: jax.Device | None = None):
-    """Within: `index_devices` is `device` alone (None: JAX's default device): a build's
-    process whose other devices run in peer processes (`lmjx.edges.peers`), or such a
-    peer, each placing its index and push work on its own device."""
-    with _INDEXES_LOCK:
-        _OWN.append(device)
-    try:
-        yield
-    finally:
-        with _INDEXES_LOCK:
-            _OWN.pop()
-
-
-def index_devices() -> list[jax.Device | None]:
-    """The devices the map's index runs on, in turn: every local accelerator (None: JAX's
-    default, the first); on a CPU the default device alone (host devices share the cores);
-    under `own_device`, its device."""
-    if _OWN:
-        return [_OWN[-1]]
-    devices = jax.local_devices()
-    if devices[0].platform == "cpu":
-        return [None]
-    return [None, *devices[1:]]
-
-
-def next_device(kind: str = "index") -> jax.Device | None:
-    """The next of `index_devices()` for work of `kind`, in turn (thread-safe): where the
-    build's packers place their device work (the index, the push samples), so that it does
-    not all queue behind the first device's rollouts.  Each kind has a turn of its own (a
-    packer asks for the index's, then the push samples': one shared turn gave the index the
-    first device every time)."""
-    devices = index_devices()
-    with _INDEXES_LOCK:
-        i = _TURN.get(kind, 0)
-        _TURN[kind] = i + 1
-    return devices[i % len(devices)]
 
 
 def warm_index(robot: Robot, nx: int, ny: int, cell: float) -> None:

@@ -37,10 +37,10 @@ from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from pathlib import Path
 
 from lmjx.edges import chunkfile
-from lmjx.edges.bundle import BundleConfig, reasons
 from lmjx.edges.chunk import EdgeChunk, chunk_ranges, pack_chunk
 from lmjx.edges.mapappend import Job, peak_rss
 from lmjx.edges.sampling import split_rolled
+from lmjx.mapfile.bundle import BundleConfig, reasons
 from lmjx.mapfile.digest import DIGEST_ATTR
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.pushcounts import write_push_counts
@@ -164,7 +164,7 @@ class MapWriter:
         # saved chunks are not packed here, computes them from the map at the end); their
         # scenarios' goal fields made on a thread of their own (one that does not keep an
         # interrupted build from ending), so that the first chunk does not wait for them
-        from lmjx.planner.pushbuild import BuildPushCounts  # (here: the writing process never needs the planner)
+        from lmjx.mapfile.pushbuild import BuildPushCounts  # (here: the writing process never needs the planner)
 
         self.push: _Background | None = None
         if not done:

@@ -43,8 +43,8 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.model.failure import Failure
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.child import annotated, start_child
@@ -269,9 +269,9 @@ def peer_process(inbox_fd: int, outbox_fd: int) -> None:
                                f"{devices}")  # fmt: skip
         device = devices[programs.device]
         # every program and transfer not placed otherwise goes to its device, and the index's
-        # and the push counts' work (`index.own_device`)
+        # and the push counts' work (`runtime.devices.own_device`)
         jax.config.update("jax_default_device", device)
-        from lmjx.edges.index import own_device
+        from lmjx.runtime.devices import own_device
 
         with own_device(device):
             peer = _Peer(programs, device, inbox, outbox, t0)
@@ -297,8 +297,8 @@ class _Peer:
     def __init__(self, programs: PeerPrograms, device: Any, inbox: Connection, outbox: Connection, t0: float) -> None:
         from lmjx.edges.index import capsule_ends_kernel, warm_index
         from lmjx.edges.sampling import EdgeKernels
+        from lmjx.mapfile.pushsamples import compile_program
         from lmjx.model.robot import load_robot
-        from lmjx.planner.pushsamples import compile_program
 
         self.programs, self.device, self.inbox, self.outbox, self.t0 = programs, device, inbox, outbox, t0
         self.claim_lock = threading.Lock()  # a request and its answer
@@ -340,7 +340,7 @@ class _Peer:
         from lmjx.edges.chunkfile import save
         from lmjx.edges.index import index_totals
         from lmjx.edges.sampling import draw_edges, roll_out, solve_starts, split_rolled
-        from lmjx.planner.pushbuild import BuildPushCounts
+        from lmjx.mapfile.pushbuild import BuildPushCounts
 
         programs, robot, kernels = self.programs, self.robot, self.kernels
         reach, config, folder = work.reach, programs.config, Path(work.folder)

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from kernels.rollout import Limits, edge_rollout
-from lmjx.edges.bundle import BundleConfig
 from lmjx.errors import ConfigError
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.reach.ik_batch import IKBatch, default_chunk, default_ik_settings

@@ -49,7 +49,6 @@ from pathlib import Path
 
 import numpy as np
 
-from lmjx.edges.bundle import BundleConfig
 from lmjx.edges.chunk import chunk_ranges
 from lmjx.edges.chunkfile import NAME, saved_chunks
 from lmjx.edges.compiling import (
@@ -60,7 +59,7 @@ from lmjx.edges.compiling import (
     preset_record,
 )
 from lmjx.edges.existing import build_plan, difference
-from lmjx.edges.index import capsule_ends_kernel, index_totals, own_device, warm_index
+from lmjx.edges.index import capsule_ends_kernel, index_totals, warm_index
 from lmjx.edges.mapwriter import MapWriter, WriterProcess
 from lmjx.edges.peers import PeerPrograms, Peers, PeerWork, peer_environment
 from lmjx.edges.peers import enabled as peers_enabled
@@ -69,6 +68,7 @@ from lmjx.edges.preflight import duration_text as _duration
 from lmjx.edges.preflight import size_text as _size
 from lmjx.edges.sampling import EdgeKernels, draw_edges, roll_out, solve_starts, start_cells
 from lmjx.errors import ConfigError, OutputPathError
+from lmjx.mapfile.bundle import BundleConfig
 from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_reach_map
 from lmjx.model.failure import Failure
@@ -77,6 +77,7 @@ from lmjx.reach.reachability import ReachConfig, ReachResult, reach_ik, reach_ma
 from lmjx.runtime import threadprof
 from lmjx.runtime.batching import backend, device_description
 from lmjx.runtime.cache import cache_dir, in_jax_cache
+from lmjx.runtime.devices import own_device
 from lmjx.runtime.fileio import check_writable
 from lmjx.runtime.progress import Progress
 

@@ -38,10 +38,10 @@ from lmjx.errors import ConfigError
 from lmjx.mapfile.read import MapFile
 from lmjx.model.robot import Robot
 from lmjx.planner.edge_planner import edges_over_target
-from lmjx.planner.goalfield import GoalField
 from lmjx.planner.scoring import _score_field, drawn_starts, score, table_bounds
 from lmjx.planner.transit import TransitPlanner, after_executing
 from lmjx.runtime.fileio import atomic_path
+from lmjx.sim.goalfield import GoalField
 from lmjx.sim.realworld import SimulatedRealWorld
 from lmjx.sim.scenarios import Scenario, sample_layout, scenario
 from lmjx.types import Observation, PlannerConfig, Simulator

@@ -31,11 +31,11 @@ from typing import Any
 
 from lmjx.evaluation.lockstep import run_lockstep
 from lmjx.evaluation.provenance import trial_provenance
-from lmjx.evaluation.trial import make_simulator, setup_trial
 from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.robot import Robot
 from lmjx.planner.records import TrialResult
 from lmjx.planner.transit import TransitPlanner
+from lmjx.planner.trial import make_simulator, setup_trial
 from lmjx.runtime.child import annotated, start_child
 from lmjx.runtime.cores import usable_cores
 from lmjx.types import PlannerConfig

@@ -1,5 +1,5 @@
 """The push counts a map stores (`/edges/push`): those of its robot's built-in scenarios and
-both task sets, computed when the map is built (`lmjx.planner.pushfield.builtin_counts`),
+both task sets, computed when the map is built (`lmjx.mapfile.pushmap.builtin_counts`),
 so that the planner's push weight costs nothing on the first decision.
 
 The group holds one entry per scenario and task set: `key` (the planner's name for the

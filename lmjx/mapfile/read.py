@@ -13,8 +13,8 @@ import h5py
 import numpy as np
 
 from lmjx import __version__
-from lmjx.edges.bundle import Bundle, BundleConfig
 from lmjx.errors import MapFileError
+from lmjx.mapfile.bundle import Bundle, BundleConfig
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.lazystates import StateReader, damaged
 from lmjx.mapfile.pushcounts import read_push_counts

@@ -28,7 +28,7 @@ from lmjx.errors import ConfigError
 from lmjx.runtime.fileio import check_writable, write_text_atomic
 
 if TYPE_CHECKING:
-    from lmjx.edges.bundle import Bundle
+    from lmjx.mapfile.bundle import Bundle
     from lmjx.reach.reachability import ReachResult
 
 TRAJECTORY_FORMAT = "lmjx-trajectory/1"

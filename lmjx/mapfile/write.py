@@ -37,10 +37,10 @@ from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.fileio import atomic_path
 
 if TYPE_CHECKING:  # (the map-writing process appends edges without the robot's model or JAX: `edges.mapappend`)
-    from lmjx.edges.bundle import Bundle, BundleConfig
+    from lmjx.mapfile.bundle import Bundle, BundleConfig
+    from lmjx.mapfile.pushbuild import BuildPushCounts
     from lmjx.model.failure import Failure
     from lmjx.model.robot import Robot
-    from lmjx.planner.pushbuild import BuildPushCounts
     from lmjx.reach.reachability import ReachResult
 
 try:  # Intel ISA-L's deflate: standard deflate streams (any HDF5 reads them), 6-10x faster
@@ -466,8 +466,8 @@ def store_push_counts(
 ) -> dict:
     """Compute the push counts of the map at `path` (reach map and edges written) and add
     them to it (`/edges/push`); figures back (seconds, entries).  Runs where JAX computes
-    (the map's states go through the device once, `lmjx.planner.pushsamples`), unless
-    `summed` (`lmjx.planner.pushbuild.BuildPushCounts`) holds them, summed over the map's
+    (the map's states go through the device once, `lmjx.mapfile.pushsamples`), unless
+    `summed` (`lmjx.mapfile.pushbuild.BuildPushCounts`) holds them, summed over the map's
     chunks while it was built: then only their keys are computed here."""
     t0 = time.perf_counter()
     entries, attrs = push_counts_of(path, robot, progress, summed)
@@ -481,14 +481,14 @@ def push_counts_of(
 ) -> tuple[list, dict]:
     """`store_push_counts`'s counts of the map at `path` (only read) and the attributes
     `write_push_counts` stores with them."""
+    from lmjx.mapfile.pushmap import COUNTS_VERSION, HEIGHT, MAX_ANGLE, builtin_counts
     from lmjx.mapfile.read import load_map
-    from lmjx.planner.clearance import FIXED_MARGIN, MIN_EDGE_STATES
-    from lmjx.planner.pushfield import COUNTS_VERSION, HEIGHT, MAX_ANGLE, builtin_counts
     from lmjx.runtime.batching import backend
+    from lmjx.sim.sceneboxes import FIXED_MARGIN, MIN_EDGE_STATES
 
     t0 = time.perf_counter()
     if summed is not None:
-        from lmjx.planner.pushbuild import KeyedEdges
+        from lmjx.mapfile.pushbuild import KeyedEdges
 
         with h5open(path, "r") as f:
             entries = summed.entries(KeyedEdges.read(f["edges"]))

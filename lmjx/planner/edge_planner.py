@@ -31,7 +31,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.mapfile.bundle import Bundle
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.planner.phases import PhaseClock

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE, OBJECT_MARGIN
+from lmjx.planner.clearance import JAM_MARGIN, LEAVE_TOLERANCE
+from lmjx.sim.sceneboxes import OBJECT_MARGIN
 
 RETREAT_SLACK = 0.005  # a retreat backs out until the arm keeps this far outside the scene's margins [m]
 RETREAT_STEP = 0.05  # the retreat's waypoints: at least this far apart (largest joint motion) [rad]

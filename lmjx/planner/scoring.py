@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.mapfile.bundle import Bundle
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
-from lmjx.planner.goalfield import GoalField
 from lmjx.reach.reachability import ReachResult
+from lmjx.sim.goalfield import GoalField
 from lmjx.sim.scenarios import Scenario
 from lmjx.types import RESCORE_POS_NOISE, RESCORE_YAW_NOISE, PlannerConfig
 
@@ -35,13 +35,14 @@ def _score_field(
 ) -> GoalField | _Straight:
     """What Greedy and Lazy call "closest" (`PlannerConfig.path_score`, `push_weight`).  The
     push counts a weight needs: the map's own (stored when it was built), else those of the
-    cache folder, else computed and kept there (`lmjx.planner.pushfield`)."""
+    cache folder, else computed and kept there (`lmjx.mapfile.pushmap`)."""
     if not cfg.path_score:
         return _Straight(sc)
     lo, hi = table_bounds(robot)
     if cfg.push_weight <= 0.0 or cfg.asm == "random":  # (Random scores nothing: no counts for it)
         return GoalField(sc, lo, hi)
-    from lmjx.planner.pushfield import bundle_memo, counts_for, push_weights
+    from lmjx.mapfile.pushmap import bundle_memo, counts_for
+    from lmjx.planner.pushfield import push_weights
 
     memo = bundle_memo(bundle)  # the weighted field, once per bundle, scenario and weight
     key = ("field", sc, cfg.push_weight, cfg.target_margin)

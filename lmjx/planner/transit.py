@@ -42,31 +42,26 @@ import itertools
 from collections.abc import Callable
 from typing import Any
 
-import mujoco
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.mapfile.bundle import Bundle
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
-from lmjx.planner.clearance import (
-    EDGE_BOXES,
-    FIXED_MARGIN,
-    JAM_MARGIN,
-    MIN_EDGE_STATES,
-    OBJECT_MARGIN,
-    SceneBoxes,
-    SceneChecks,
-    box_kernel,
-    box_slots,
-    cut_at_fixed,
-    park_pose,
-    scene_boxes,
-)
+from lmjx.planner.clearance import JAM_MARGIN, SceneChecks, park_pose
 from lmjx.planner.escape import JamEscapes
 from lmjx.planner.phases import PhaseClock
 from lmjx.planner.roadmap import Roadmap
 from lmjx.planner.timelaw import retime
 from lmjx.planner.turned import TurnedEdges
+from lmjx.sim.sceneboxes import (
+    EDGE_BOXES,
+    FIXED_MARGIN,
+    MIN_EDGE_STATES,
+    OBJECT_MARGIN,
+    box_kernel,
+    cut_at_fixed,
+    scene_boxes,
+)
 from lmjx.types import CONTROL_DT, Action
 
 ACT_DEPTH = 0.005  # an edge acts on the target when the arm sweeps this deep into its box [m]
@@ -109,29 +104,18 @@ class TransitPlanner(SceneChecks, JamEscapes):
     def __init__(
         self, robot: Robot, failure: Failure, speed_fraction: float = 0.5, batched: bool = False, search: bool = True
     ) -> None:
-        self.robot = robot
+        super().__init__(robot, batched)
         self.failure = failure
-        self.m = robot.mj
-        self.d = mujoco.MjData(self.m)
         self.speed = speed_fraction * robot.qd_max
         self.park = park_pose(robot, failure)
-        self.batched = batched
-        self._kernel = None
-        self._box_kernels: dict[int, Any] = {}  # box slots -> the scenes' clearance program (`box_slots`)
-        self._bound_kernels: dict[int, Any] = {}  # box slots -> the scenes' lower-bound program
         self._edge_kernel = None
-        from lmjx.runtime.batching import backend
-
-        self._host_bounds = backend() == "cpu"  # the cheap lower bound first (on the host)
         self.scene_version: Any = 0  # the scene set, by content (`set_scene`): the caches' keys hold it
         self._forgotten = 0  # how often `forget` was called (part of every scene version since)
-        self._relax = 0.0  # movable objects' margins reduced by this much (`to_park`'s way out of a jam)
         self._to_park: dict = {}  # (where from, in which scene) -> the transit to the park pose (`_memo`)
         self._retreat: dict = {}  # (where from, along what, in which scene) -> (the retreat, jammed) (`_memo`)
         self._escape: dict = {}  # (where from, in which scene) -> the `escape` (`_memo`)
         self.last_tally: dict[str, int] = {}  # the last `actions` call's edges, by why they were not offered
         self._trail: dict = {}  # (where from, how long a trail, in which scene) -> `trail_back` (`_memo`)
-        self.scene: SceneBoxes | None = None
         # offer only edges that bring the arm into contact range of the target (set_scene)
         self.acting = False
         self._from_park: dict[tuple, np.ndarray | None] = {}  # (bundle id, edge, start) -> park -> start
@@ -157,15 +141,10 @@ class TransitPlanner(SceneChecks, JamEscapes):
         key = (self._forgotten, sc, objects.shape, objects.tobytes(), bool(acting))
         if self.scene is not None and key == self.scene_version:
             return
-        self.scene = scene_boxes(sc, objects)
+        self.place(scene_boxes(sc, objects))
         self.scene_version = key
         self.acting = acting
         self._from_park.clear()  # park -> start depends on where the objects are
-        n = box_slots(len(self.scene.names))
-        if n in self._box_kernels:
-            self._box_kernels[n].set_shared(*self.scene.padded(n))
-        if n in self._bound_kernels:
-            self._bound_kernels[n].set_shared(*self.scene.bound_inputs(n))
 
     def forget(self) -> None:
         """Drop what was kept about the scenes set so far (the transits through the park pose,

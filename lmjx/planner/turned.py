@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lmjx.edges.bundle import Bundle, EdgeStates
+from lmjx.mapfile.bundle import Bundle, EdgeStates
 from lmjx.model.failure import Failure
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult

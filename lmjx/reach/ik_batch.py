@@ -2,7 +2,7 @@
 
 `IKBatch` compiles one program per (free joints, lock angles unless traced, candidate sites,
 settings, chunk size); with `traced_locks` the lock angles are inputs, so a sweep over lock
-angles compiles once.  It owns no algorithm: `lmjx.reach.reachability` and `lmjx.edges.bundle` decide what to
+angles compiles once.  It owns no algorithm: `lmjx.reach.reachability` and `lmjx.mapfile.bundle` decide what to
 solve.
 """
 

@@ -1,7 +1,7 @@
 """Run a one-item kernel over a flat batch: jit(vmap(...)), fixed-size padded chunks, one
 compilation per kernel key, compile time kept apart from run time.
 
-The IK batches (`lmjx.reach.ik_batch`) and the edge rollouts (`lmjx.edges.bundle`) both run through
+The IK batches (`lmjx.reach.ik_batch`) and the edge rollouts (`lmjx.mapfile.bundle`) both run through
 `ChunkedKernel`.  It owns no algorithm.
 """
 

@@ -6,7 +6,7 @@ Three caches live in one per-user folder:
     by the kernel, lmjx's kernel sources, JAX's version and the platform (`lmjx.runtime.batching`);
   * `<dir>/warp`: Warp's kernel cache (MuJoCo Warp's kernels, for the GPU simulator).
 Beside them, not a compiled program: `<dir>/pushes`, the push counts of a map and scenario
-(`lmjx.planner.pushfield.cached_counts`).
+(`lmjx.mapfile.pushmap.cached_counts`).
 The folder is, in this order: `--cache-dir DIR` on the command line, the environment
 variable `LMJX_CACHE_DIR`, `$XDG_CACHE_HOME/lmjx`, `~/.cache/lmjx`.  `off` turns lmjx's
 caching off (JAX then compiles every run; Warp keeps its own default cache).  A

@@ -66,7 +66,7 @@ class Box:
     rgba: tuple[float, float, float, float] = OBSTACLE_RGBA
     z: float | None = None  # centre height; default: resting on the table
     # (the fields below are left out of the repr: it keys the push counts a map stores,
-    # `lmjx.planner.pushfield.counts_key`, which frictions and jitters do not change)
+    # `lmjx.mapfile.pushmap.counts_key`, which frictions and jitters do not change)
     friction: float = field(default=0.5, repr=False)  # sliding friction (MuJoCo takes the larger of a pair's)
     jitter: float | None = field(default=None, repr=False)  # [m] its own position jitter; None: the scenario's
     yaw_jitter: float | None = field(default=None, repr=False)  # [rad] its own yaw jitter; None: the scenario's

@@ -21,12 +21,8 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from lmjx.edges.bundle import Bundle, BundleConfig
-from lmjx.edges.index import next_device
-from lmjx.mapfile.schema import config_from_attrs
-from lmjx.model.failure import Failure
-from lmjx.model.robot import Robot
-from lmjx.planner.pushfield import (
+from lmjx.mapfile.bundle import Bundle, BundleConfig
+from lmjx.mapfile.pushmap import (
     HEIGHT,
     MAX_ANGLE,
     FixedCut,
@@ -36,8 +32,12 @@ from lmjx.planner.pushfield import (
     fixed_cut,
     scenario_field,
 )
-from lmjx.planner.pushsamples import push_samples
+from lmjx.mapfile.pushsamples import push_samples
+from lmjx.mapfile.schema import config_from_attrs
+from lmjx.model.failure import Failure
+from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
+from lmjx.runtime.devices import next_device
 from lmjx.sim.scenarios import SCENARIOS, TASK_SETS, scenario
 
 
@@ -100,7 +100,7 @@ class BuildPushCounts:
     def _fixed_cuts(self) -> list[FixedCut | None]:
         with self._cuts_lock:
             if self._cuts is None:
-                self._cuts = [fixed_cut(self.robot, self.failure, sc) for _, _, sc in self.scenarios]
+                self._cuts = [fixed_cut(self.robot, sc) for _, _, sc in self.scenarios]
             return self._cuts
 
     def add(self, length: np.ndarray, q: np.ndarray, workers: int = 1) -> None:

@@ -1,4 +1,4 @@
-"""The map's part of the push counts (`lmjx.planner.pushfield`): where each edge's capsules
+"""The map's part of the push counts (`lmjx.mapfile.pushmap`): where each edge's capsules
 pass low over a reach cell, found once per map, whatever the scenario.
 
 A push sample is an edge's state k and one of the arm's table-checked capsules whose lower
@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lmjx.edges.bundle import Bundle
+from lmjx.mapfile.bundle import Bundle
 from lmjx.model.robot import Robot
-from lmjx.planner.clearance import MIN_EDGE_STATES
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import backend, fetch
 from lmjx.runtime.cores import usable_cores
 from lmjx.runtime.progress import Progress
+from lmjx.sim.sceneboxes import MIN_EDGE_STATES
 
 if TYPE_CHECKING:
     import jax

@@ -156,7 +156,7 @@ class Bundle:
     edge_steps: int  # nominal work: edges rolled out x the longest edge's steps
     states_evaluated: int  # states actually evaluated (each edge up to its end or first violation)
     device: str
-    # the push counts the map stores (`lmjx.planner.pushfield.counts_key` -> (ny, nx) counts):
+    # the push counts the map stores (`lmjx.mapfile.pushmap.counts_key` -> (ny, nx) counts):
     # its robot's built-in scenarios, computed when it was built; empty for a map without them
     push: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 

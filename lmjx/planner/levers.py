@@ -183,7 +183,7 @@ def planner_config(asm: str, sim: str, levers: Mapping[str, Any] | None = None) 
     "cpu-near", "gpu"; Random's "none" counts as "cpu"): PlannerConfig's defaults with Greedy's
     candidates chosen for the simulator (`DEFAULT_CANDIDATES`), the paper's settings where
     `asm_settings` is "paper", then every other key of `levers` (checked values), validated."""
-    from lmjx.evaluation.trial import DEFAULT_CANDIDATES
+    from lmjx.planner.trial import DEFAULT_CANDIDATES
 
     rest = dict(levers or {})
     preset = rest.pop(PRESET, "lmjx")

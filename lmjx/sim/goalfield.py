@@ -35,7 +35,7 @@ class GoalField:
     ) -> None:
         """`weights`: a cost per metre at table points (n, 2) -> (n,), at least 1 (None: 1
         everywhere, the path length); the field is then the cheapest way's cost
-        (`lmjx.planner.pushfield`)."""
+        (`lmjx.mapfile.pushmap`)."""
         self.cell = cell
         self.lo = np.asarray(table_lo, np.float64)[:2]
         nx, ny = (np.ceil((np.asarray(table_hi)[:2] - self.lo) / cell).astype(int) + 1).tolist()
