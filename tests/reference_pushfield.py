@@ -33,7 +33,7 @@ def reference_push_pairs(
     max_angle: float = MAX_ANGLE,
     height: float = HEIGHT,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(cell, edge) pairs, unique, sorted by cell then edge (`pushfield.push_pairs`)."""
+    """(cell, edge) pairs, unique, sorted by cell then edge (`pushmap.push_pairs`)."""
     tp = TransitPlanner(robot, failure, batched=True)
     tp.set_scene(sc, far_objects(sc), acting=False)
     fixed = np.nonzero(~tp.scene.movable)[0]

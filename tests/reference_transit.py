@@ -11,16 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from lmjx.mapfile.bundle import Bundle
+from lmjx.planner.search import LATE_TRIES, MIN_BLOCK, NO_ACTION_KEYS, transit_velocities
 from lmjx.planner.timelaw import retime
-from lmjx.planner.transit import (
-    ACT_DEPTH,
-    LATE_TRIES,
-    MIN_BLOCK,
-    NO_ACTION_KEYS,
-    WHOLE,
-    TransitPlanner,
-    transit_velocities,
-)
+from lmjx.planner.transit import ACT_DEPTH, WHOLE, TransitPlanner
 from lmjx.planner.turned import TurnedEdges
 from lmjx.sim.sceneboxes import EDGE_BOXES, FIXED_MARGIN, MIN_EDGE_STATES, box_kernel, cut_at_fixed
 from lmjx.types import CONTROL_DT, Action

@@ -115,7 +115,8 @@ def _no_wall_time(summary: dict) -> dict:
     """A trial's summary without its wall times (planning_s and compile_s, its own and every
     step's: only the run that compiled a kernel first has compile_s)."""
     wall = {"planning_s": 0, "compile_s": 0}
-    return summary | wall | {"steps": [s | wall for s in summary["steps"]]}
+    each = wall | {"latency_s": 0, "phase_s": 0, "shared_s": 0}  # (and each decision's times)
+    return summary | wall | {"steps": [s | each for s in summary["steps"]]}
 
 
 def test_plan_task_refuses_in_one_line(small_map, tiny_case2, tmp_path):

@@ -205,7 +205,8 @@ def test_set_and_planner_config_give_the_old_options_config(tmp_path):
 def test_a_moved_option_says_where_it_moved_and_works_as_before(small_map, tmp_path):
     def no_wall_time(summary: dict) -> dict:
         wall = {"planning_s": 0, "compile_s": 0}
-        return summary | wall | {"steps": [s | wall for s in summary["steps"]]}
+        each = wall | {"latency_s": 0, "phase_s": 0, "shared_s": 0}  # (and each decision's times)
+        return summary | wall | {"steps": [s | each for s in summary["steps"]]}
 
     # (no push weight: its counts are not needed)
     args = ("plan", "--map", small_map, "--scenario", "1", "--asm", "greedy", "--candidates", "4", "--max-actions",

@@ -49,7 +49,7 @@ COMPUTED = ("edges/q", "edges/qd", "edges/p", "edges/q_start", "edges/peak_torqu
             "edges/peak_acceleration_ratio", "edges/min_manipulability")  # fmt: skip
 
 
-# The push counts' names: hashes of the edges' starts, among others (`pushfield.counts_key`).
+# The push counts' names: hashes of the edges' starts, among others (`pushmap.counts_key`).
 PUSH_KEYS = ("edges/push/key",)
 
 

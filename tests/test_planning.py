@@ -629,7 +629,7 @@ def test_late_starts_enter_an_edge_at_its_first_state_clear_of_the_scene(robot, 
     transit keeps every margin.  Edges offered without the option are offered alike with it;
     no edge whose start is blocked by a movable object alone is entered late."""
     from lmjx.planner.edge_planner import edges_over_target
-    from lmjx.planner.transit import LATE_TRIES
+    from lmjx.planner.search import LATE_TRIES
     from lmjx.sim.sceneboxes import FIXED_MARGIN, OBJECT_MARGIN
 
     m = load_map(plan_map)
@@ -1244,7 +1244,7 @@ def test_a_small_scene_is_checked_by_the_small_program_with_the_same_figures(rob
 
 
 def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_map):
-    """`pushfield.push_pairs` on the tunnel (hard scenario 2) against a reference computed
+    """`pushmap.push_pairs` on the tunnel (hard scenario 2) against a reference computed
     here with C MuJoCo's kinematics (each table-checked capsule's ends from its geom's pose):
     for a sample of the edges whose start is clear of the wall and roof, the same (cell, edge)
     pairs; every pair is one of the map's spatial index (built apart, with the map); a wider
@@ -1323,14 +1323,14 @@ def test_pushes_toward_the_goal_match_c_mujoco_and_the_maps_index(robot, plan_ma
 
 
 def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_path, monkeypatch):
-    """The planner's push counts of a map that does not store them (`pushfield.cached_counts`):
+    """The planner's push counts of a map that does not store them (`pushmap.cached_counts`):
     computed once (the counts `push_pairs` gives), then read from the cache folder by another
     process's bundle without computing, the same weighted score; another scenario, other
     edges, another robot model or goal field is another file; a damaged file or one of
     another shape is computed again and replaced; the cache off: no file."""
     import dataclasses
 
-    from lmjx.planner import pushfield
+    from lmjx.mapfile import pushmap
     from lmjx.planner.scoring import _score_field, table_bounds
     from lmjx.sim.goalfield import GoalField
 
@@ -1340,29 +1340,29 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     b.push = {}  # (the map's own counts: tests/test_pushfield.py)
     sc = scenario(2, tasks="hard")
     field = GoalField(sc, *table_bounds(robot))
-    key = pushfield.counts_key(robot, b, reach, sc, field)
+    key = pushmap.counts_key(robot, b, reach, sc, field)
     path = tmp_path / "pushes" / f"{key}.npy"
-    real = pushfield.scenario_counts
+    real = pushmap.scenario_counts
     computed = []  # the planner's scenario_counts calls: (arguments, result)
 
     def spy(*args, **kwargs):
         computed.append((args, kwargs, real(*args, **kwargs)))
         return computed[-1][2]
 
-    monkeypatch.setattr(pushfield, "scenario_counts", spy)
+    monkeypatch.setattr(pushmap, "scenario_counts", spy)
     weighted = _score_field(robot, m.failure, reach, b, sc, PlannerConfig(push_weight=1.0))
     assert len(computed) == 1  # computed once, for this map, scenario, goal field and the default settings
     args, kwargs, counts = computed[0]
     assert args[2] is b and args[4] == sc and np.array_equal(args[5].values, field.values)
     assert len(args) == 6 and set(kwargs) <= {"progress"}
-    cells, _ = pushfield.push_pairs(robot, m.failure, b, reach, sc, field)
-    assert np.array_equal(counts, pushfield.push_counts(cells, reach))
+    cells, _ = pushmap.push_pairs(robot, m.failure, b, reach, sc, field)
+    assert np.array_equal(counts, pushmap.push_counts(cells, reach))
     assert path.exists() and np.array_equal(np.load(path), counts) and counts.sum() > 100
 
     def computing(*args, **kwargs):
         raise AssertionError("computed again")
 
-    monkeypatch.setattr(pushfield, "scenario_counts", computing)
+    monkeypatch.setattr(pushmap, "scenario_counts", computing)
     fresh = load_map(plan_map).edges  # another bundle: nothing memoized on it
     fresh.push = {}
     again = _score_field(robot, m.failure, reach, fresh, sc, PlannerConfig(push_weight=1.0))
@@ -1372,22 +1372,22 @@ def test_push_counts_are_kept_in_the_cache_and_read_back(robot, plan_map, tmp_pa
     other_model = dataclasses.replace(robot, model_hash="0" * 64)
     doubled = GoalField(sc, *table_bounds(robot), weights=lambda p: np.full(len(p), 2.0))
     for k in (
-        pushfield.counts_key(robot, b, reach, scenario(3, tasks="hard"), field),
-        pushfield.counts_key(robot, other_edges, reach, sc, field),
-        pushfield.counts_key(other_model, b, reach, sc, field),
-        pushfield.counts_key(robot, b, reach, sc, doubled),
+        pushmap.counts_key(robot, b, reach, scenario(3, tasks="hard"), field),
+        pushmap.counts_key(robot, other_edges, reach, sc, field),
+        pushmap.counts_key(other_model, b, reach, sc, field),
+        pushmap.counts_key(robot, b, reach, sc, doubled),
     ):
         assert k != key
-    monkeypatch.setattr(pushfield, "scenario_counts", real)
+    monkeypatch.setattr(pushmap, "scenario_counts", real)
     for damage in (b"not an array", None):
         if damage is None:
             np.save(path, np.zeros((3, 3), np.int64))  # counts of another grid
         else:
             path.write_bytes(damage)
-        fixed, where = pushfield.cached_counts(key, counts.shape, lambda: counts)
+        fixed, where = pushmap.cached_counts(key, counts.shape, lambda: counts)
         assert where == path and np.array_equal(fixed, counts) and np.array_equal(np.load(path), counts)
     monkeypatch.setenv("LMJX_CACHE_DIR", "off")
-    assert pushfield.cached_counts(key, counts.shape, lambda: counts)[1] is None
+    assert pushmap.cached_counts(key, counts.shape, lambda: counts)[1] is None
 
 
 def test_a_report_says_the_settings_its_trials_ran_with():

@@ -21,10 +21,10 @@ from conftest import benchmark_module, random_configs
 from reference_pushfield import reference_push_pairs
 
 from lmjx.edges.index import capsule_ends_kernel
+from lmjx.mapfile import pushmap, pushsamples
 from lmjx.mapfile.digest import content_digest
 from lmjx.mapfile.read import load_map
 from lmjx.mapfile.write import write_map
-from lmjx.planner import pushfield, pushsamples
 from lmjx.planner.clearance import park_pose
 from lmjx.planner.scoring import _score_field
 from lmjx.planner.transit import TransitPlanner
@@ -51,8 +51,8 @@ def _bundle_of(b, edges: list[np.ndarray]):
 
 def _same_pairs(robot, m, bundle, sc) -> tuple[np.ndarray, np.ndarray]:
     """The two-stage pairs, checked equal to the reference's; returned."""
-    field = pushfield.scenario_field(robot, sc)
-    cells, edges = pushfield.push_pairs(robot, m.failure, bundle, m.reach, sc, field)
+    field = pushmap.scenario_field(robot, sc)
+    cells, edges = pushmap.push_pairs(robot, m.failure, bundle, m.reach, sc, field)
     ref_cells, ref_edges = reference_push_pairs(robot, m.failure, bundle, m.reach, sc, field)
     assert np.array_equal(cells, ref_cells) and np.array_equal(edges, ref_edges), (len(cells), len(ref_cells))
     return cells, edges
@@ -110,16 +110,16 @@ def test_pairs_equal_the_reference_and_the_map_stores_their_counts(robot, plan, 
         for number in sorted(SCENARIOS):
             sc = scenario(number, robot.profile.task_scale, tasks)
             cells, _ = _same_pairs(robot, plan, b, sc)
-            key = pushfield.counts_key(robot, b, plan.reach, sc, pushfield.scenario_field(robot, sc))
-            assert np.array_equal(b.push[key], pushfield.push_counts(cells, plan.reach))
+            key = pushmap.counts_key(robot, b, plan.reach, sc, pushmap.scenario_field(robot, sc))
+            assert np.array_equal(b.push[key], pushmap.push_counts(cells, plan.reach))
             sums[tasks, number] = len(cells)
     assert min(sums.values()) > 100
-    monkeypatch.setattr(pushfield, "READ_ROWS", 1000)
+    monkeypatch.setattr(pushmap, "READ_ROWS", 1000)
     with load_map(plan_map, lazy=True) as lazy:
         sc = scenario(2, robot.profile.task_scale, "hard")
-        field = pushfield.scenario_field(robot, sc)
-        got = pushfield.push_pairs(robot, lazy.failure, lazy.edges, lazy.reach, sc, field)
-        want = pushfield.push_pairs(robot, plan.failure, b, plan.reach, sc, field)
+        field = pushmap.scenario_field(robot, sc)
+        got = pushmap.push_pairs(robot, lazy.failure, lazy.edges, lazy.reach, sc, field)
+        want = pushmap.push_pairs(robot, plan.failure, b, plan.reach, sc, field)
         assert lazy.lazy and all(np.array_equal(x, y) for x, y in zip(got, want, strict=True))
     whole = tmp_path / "whole.h5"
     write_map(whole, plan.reach, b, robot)
@@ -133,10 +133,10 @@ def test_an_edge_cut_short_by_a_wall_within_its_first_states_pushes_nothing(robo
     kmax + 1 but short of MIN_EDGE_STATES, is never offered (its executed part too short):
     it pushes nothing, as in the reference, while the same edge away from the wall pushes."""
     sc = scenario(2, robot.profile.task_scale, "hard")
-    field = pushfield.scenario_field(robot, sc)
+    field = pushmap.scenario_field(robot, sc)
     b = plan.edges
     tp = TransitPlanner(robot, plan.failure, batched=True)
-    tp.set_scene(sc, pushfield.far_objects(sc), acting=False)
+    tp.set_scene(sc, pushmap.far_objects(sc), acting=False)
     fixed = ~tp.scene.movable
 
     def near_wall(q: np.ndarray) -> np.ndarray:
@@ -147,8 +147,8 @@ def test_an_edge_cut_short_by_a_wall_within_its_first_states_pushes_nothing(robo
     near = near_wall(b.q[some])
     assert near.any()
     wall = b.q[some[np.argmax(near)]]
-    s = pushfield.bundle_samples(robot, b, plan.reach, pushfield.HEIGHT, False)
-    ok = pushfield._toward(s, field, pushfield.MAX_ANGLE) & (s.k <= 1)
+    s = pushmap.bundle_samples(robot, b, plan.reach, pushmap.HEIGHT, False)
+    ok = pushmap._toward(s, field, pushmap.MAX_ANGLE) & (s.k <= 1)
     picked = None
     for e in np.unique(s.sample_edge()[ok]):
         first = b.edge(int(e), ("q",))["q"][:3]
@@ -162,8 +162,8 @@ def test_an_edge_cut_short_by_a_wall_within_its_first_states_pushes_nothing(robo
     _, edges = _same_pairs(robot, plan, bundle, sc)
     assert 0 not in edges and 1 in edges
     # the trap holds: the trap edge's last sample toward the goal is short of the wall by two states or more
-    ts = pushfield.bundle_samples(robot, bundle, plan.reach, pushfield.HEIGHT, False)
-    kmax = ts.k[(ts.sample_edge() == 0) & pushfield._toward(ts, field, pushfield.MAX_ANGLE)].max()
+    ts = pushmap.bundle_samples(robot, bundle, plan.reach, pushmap.HEIGHT, False)
+    kmax = ts.k[(ts.sample_edge() == 0) & pushmap._toward(ts, field, pushmap.MAX_ANGLE)].max()
     assert kmax + 2 <= 4 < MIN_EDGE_STATES
 
 
@@ -172,7 +172,7 @@ def test_a_run_with_more_low_pairs_than_its_budget_is_computed_in_parts(robot, p
     passes more pairs than a call returns; the run is split and computed again, and the
     pairs are the reference's."""
     b = plan.edges
-    s = pushfield.bundle_samples(robot, b, plan.reach, pushfield.HEIGHT, False)
+    s = pushmap.bundle_samples(robot, b, plan.reach, pushmap.HEIGHT, False)
     row = b.offset[s.sample_edge()] + s.k
     rows, per_state = np.unique(row, return_counts=True)
     busy = rows[(per_state >= 6) & np.isin(rows + 1, rows[per_state >= 6])][0]  # two busy states in a row
@@ -184,7 +184,7 @@ def test_a_run_with_more_low_pairs_than_its_budget_is_computed_in_parts(robot, p
     bundle = _bundle_of(b, edges)
     _same_pairs(robot, plan, bundle, scenario(1, robot.profile.task_scale, "paper"))
     assert len(splits) >= 3 and splits[0][0] == 0  # a run, then its halves (at least)
-    samples = pushfield.bundle_samples(robot, bundle, plan.reach, pushfield.HEIGHT, False)
+    samples = pushmap.bundle_samples(robot, bundle, plan.reach, pushmap.HEIGHT, False)
     assert samples.runs == -(-len(edges) // (pushsamples._rows() // 50)) and samples.device_calls == len(splits)
 
 
@@ -196,14 +196,14 @@ def test_the_planner_reads_stored_counts_and_computes_those_a_map_lacks(robot, p
     monkeypatch.setenv("LMJX_CACHE_DIR", str(tmp_path / "cache"))
     cfg = PlannerConfig(push_weight=1.0)
     sc = scenario(2, robot.profile.task_scale, "hard")
-    real = pushfield.scenario_counts
+    real = pushmap.scenario_counts
     computed = []
 
     def spy(*args, **kwargs):
         computed.append(args[4])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(pushfield, "scenario_counts", spy)
+    monkeypatch.setattr(pushmap, "scenario_counts", spy)
     m = load_map(plan_map)
     stored = _score_field(robot, m.failure, m.reach, m.edges, sc, cfg)
     assert computed == [] and not (tmp_path / "cache" / "pushes").exists()
@@ -228,7 +228,7 @@ def test_the_planner_reads_stored_counts_and_computes_those_a_map_lacks(robot, p
     assert warm(["--map", str(plan_map), "--tasks", "hard", "--scenarios", "2", "--compute"]) == 0
     assert "computed, equal to the map's" in capsys.readouterr().out
     assert warm(["--map", str(old), "--scenarios", "x"]) == 2
-    monkeypatch.setattr(pushfield, "backend", lambda: "gpu")  # counts stored on another platform: not used
+    monkeypatch.setattr(pushmap, "backend", lambda: "gpu")  # counts stored on another platform: not used
     other = load_map(plan_map)
     _score_field(robot, other.failure, other.reach, other.edges, sc, cfg)
     # (between: warm_push_counts' scenario 3 on the old map, and its --compute)
@@ -245,7 +245,7 @@ import sys
 import jax
 import numpy as np
 from lmjx.mapfile.read import load_map
-from lmjx.planner import pushsamples
+from lmjx.mapfile import pushsamples
 from lmjx.mapfile.pushmap import HEIGHT
 
 m = load_map(sys.argv[1], lazy=False)

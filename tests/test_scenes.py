@@ -91,7 +91,8 @@ def _no_wall_time(record: dict) -> dict:
     """A record without what differs between two runs of the same trial: wall-clock times and
     the id of the run that wrote it (provenance)."""
     wall = {"planning_s": 0, "compile_s": 0}
-    return {k: v for k, v in record.items() if k != "run"} | wall | {"steps": [s | wall for s in record["steps"]]}
+    each = wall | {"latency_s": 0, "phase_s": 0, "shared_s": 0}  # (and each decision's times)
+    return {k: v for k, v in record.items() if k != "run"} | wall | {"steps": [s | each for s in record["steps"]]}
 
 
 def test_a_trial_through_scene_file_equals_the_scenarios(plan_map, tmp_path):

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from lmjx.model.failure import parse_failure
+from lmjx.planner.search import transit_velocities
 from lmjx.planner.timelaw import RAMP, corners, ramp_time, ramped, retime
-from lmjx.planner.transit import TransitPlanner, transit_velocities
+from lmjx.planner.transit import TransitPlanner
 from lmjx.sim.realworld import SimulatedRealWorld
 from lmjx.sim.scenarios import sample_layout, scenario
 from lmjx.types import CONTROL_DT, Action

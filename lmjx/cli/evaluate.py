@@ -39,9 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "evaluate",
         help="trials over failures x scenarios x ASMs, with a report",
         description="Run the paper's evaluation: --trials tasks for each failure, scenario and ASM.  results.json "
-        "is written after every trial, with each trial's provenance; a rerun continues, and refuses an --out of "
-        "other conditions (commit, maps, ...).  Then report.md (95 % intervals), bubble.png, actions.png.  The "
-        "planning limit counts simulated control steps (max_sim_steps), the same on every host.",
+        "is written after every trial, with its provenance (a rerun continues; an --out of other conditions is "
+        "refused); then report.md (95 % intervals), bubble.png, actions.png.",
         epilog=LEVERS_EPILOG,
     )
     p.add_argument("--failures", metavar="LIST", help="comma separated (default: the robot's presets)")
@@ -66,8 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--part",
         metavar="K/N",
         default="1/1",
-        help="part K of N of every cell (trials K, K+N, ...), its own --out; merge: "
-        "benchmarks/eval_acceptance.py --merge",
+        help="trials K, K+N, ... of each cell, into its own --out (merged by benchmarks/eval_acceptance.py)",
     )
     _add_planner_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -80,8 +78,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--processes",
         type=_processes,
         metavar="N",
-        help="run the trials in N processes, process k simulating on GPU k (default: one per GPU where the "
-        "planner simulates on GPUs, else one); the records are those one process makes",
+        help="trials in N processes (default: GPUs x cores/4 with --sim gpu, else 1)",
     )
     p.add_argument("--json", action="store_true", help="print the summary table as JSON on stdout")
     _add_device(p)

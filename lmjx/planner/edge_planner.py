@@ -46,7 +46,8 @@ from lmjx.planner.scoring import (
     goal_distance,
     score,
 )
-from lmjx.planner.transit import NO_ACTION_KEYS, TransitPlanner, after_executing
+from lmjx.planner.search import NO_ACTION_KEYS
+from lmjx.planner.transit import TransitPlanner, after_executing
 from lmjx.planner.turned import TurnAxis, TurnedEdges, turn_axis, turned_over_target
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.compiletime import compile_seconds, jax_compile_seconds
