@@ -33,6 +33,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from lmjx.mapfile.openable import check_map_path
+
+    check_map_path(args.path)  # (a path that is no map: said before the heavy imports)
     from lmjx.mapfile.read import load_map
 
     verified = None

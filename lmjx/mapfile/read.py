@@ -17,6 +17,7 @@ from lmjx.errors import MapFileError
 from lmjx.mapfile.bundle import Bundle, BundleConfig
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.lazystates import StateReader, damaged
+from lmjx.mapfile.openable import check_map_path
 from lmjx.mapfile.pushcounts import read_push_counts
 from lmjx.mapfile.schema import READ_VERSIONS, SCHEMA, SCHEMA_VERSION, attr_str, config_from_attrs, file_robot
 from lmjx.model.failure import Failure
@@ -138,18 +139,8 @@ def load_map(
     `with_edges=False`: the reach map alone (the edges' group, whose spatial index a large
     map holds in hundreds of MB, is not read: `edges` is None and `edges_attrs` empty even
     where the file holds edges, and `lazy` does not apply)."""
-    p = Path(path)
+    p = check_map_path(path)
     robot = as_robot(robot) if robot is not None else None
-    if not p.exists():
-        raise MapFileError(f"map file {p} does not exist")
-    if p.is_dir():
-        raise MapFileError(f"{p} is a folder, not a map file")
-    try:
-        is_h5 = h5py.is_hdf5(str(p))
-    except OSError as e:
-        raise MapFileError(f"cannot read {p}: {e}") from None
-    if not is_h5:
-        raise MapFileError(f"{p} is not an HDF5 file (an lmjx map is HDF5)")
     try:
         f = h5open(p, "r", rdcc_nbytes=CACHE_BYTES, rdcc_nslots=100_003)
     except OSError as e:

@@ -81,17 +81,20 @@ class GpuSimConfig:
 
 
 def warp_problem() -> str | None:
-    """Why the GPU simulator cannot run here (None when it can)."""
-    try:
-        import warp as wp
-    except ImportError:
+    """Why the GPU simulator cannot run here (None when it can).  The CUDA driver is looked
+    for first: importing MuJoCo Warp takes seconds, which a machine without CUDA need not pay."""
+    import importlib.util
+
+    if importlib.util.find_spec("warp") is None:
         return "warp-lang is not installed (pip install -e '.[gpu]')"
+    if not _cuda_driver():
+        return "no NVIDIA CUDA driver on this machine"
+    import warp as wp
+
     try:
         from mujoco.mjx.third_party import mujoco_warp  # noqa: F401
     except ImportError as e:
         return f"MuJoCo Warp is missing from mujoco-mjx ({e})"
-    if not _cuda_driver():
-        return "no NVIDIA CUDA driver on this machine"
     from lmjx.runtime.cache import configure_warp
 
     configure_warp()
