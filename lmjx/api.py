@@ -23,6 +23,7 @@ from lmjx.mapfile.read import MapFile, load_map
 from lmjx.model.failure import Failure, as_failure
 from lmjx.model.robot import Robot, as_robot
 from lmjx.planner.records import StepRecord, TrialResult
+from lmjx.runtime.interrupt import interruptible
 from lmjx.sim.scenarios import Task
 
 DEVICES = ("auto", "cpu", "gpu")
@@ -116,6 +117,7 @@ class MapBuild:
         return load_map(self.path, self.robot, lazy=lazy)
 
 
+@interruptible
 def build_map(
     failure: Failure | str,
     robot: Robot | str | Path | None = None,
@@ -269,6 +271,7 @@ class PlanResult:
         }
 
 
+@interruptible
 def plan_task(
     map_file: str | Path | MapFile,
     scenario: int | Task | str | Path,

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lmjx.errors import ConfigError
+from lmjx.runtime.interrupt import interruptible
 
 if TYPE_CHECKING:
     from lmjx.mapfile.read import MapFile
@@ -94,6 +95,7 @@ def _check(robot: Robot, task: Task) -> None:
     check_task(robot, task)
 
 
+@interruptible
 def transit(
     robot: Robot | str,
     scene: Task,
@@ -137,6 +139,7 @@ def transit(
     return Transit(edge.index, None, "", REASONS[why])
 
 
+@interruptible
 def simulate(
     scene: Task, state: Observation, actions: list[Action], sim: str = "cpu", servo: str = "robot"
 ) -> np.ndarray:

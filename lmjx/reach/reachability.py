@@ -30,6 +30,7 @@ from lmjx.errors import ConfigError
 from lmjx.model.failure import Failure, as_failure
 from lmjx.model.robot import Robot, as_robot
 from lmjx.reach.ik_batch import IKBatch, default_chunk, default_ik_settings, device_description
+from lmjx.runtime.interrupt import interruptible
 from lmjx.runtime.progress import Progress
 from lmjx.runtime.reprs import config_repr
 
@@ -239,6 +240,7 @@ def reach_ik(robot: Robot, failure: Failure, config: ReachConfig) -> IKBatch:
     return IKBatch(robot, failure, sites, config.ik_settings(), chunk, traced_locks=config.traced_locks)
 
 
+@interruptible
 def reach_map(
     failure: Failure | str,
     config: ReachConfig | None = None,
