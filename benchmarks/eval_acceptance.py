@@ -3,7 +3,7 @@ results (results.json files).
 
     python benchmarks/eval_acceptance.py --paper docs/evaluation/paper_gpu/results.json \
         --hard docs/evaluation/hard_gpu/results.json [--paper docs/evaluation/paper_cpu/results.json ...] \
-        [--replicate BASE] [--json OUT.json] [--report DIR]
+        [--replicate BASE] [--registered PAGE.md] [--json OUT.json] [--report DIR]
 
 Prints, per run, the success (with its Wilson 95 % interval) and mean actions per successful
 trial of every cell, and then each acceptance item with the figures it rests on: the paper
@@ -11,25 +11,31 @@ set's case-1 ordering (Greedy 100 %, Random lowest and >= 40 % in two scenarios,
 Greedy the fewest actions, a one-action Random success), case 2's Greedy >= 70.6 %, the hard
 set's Greedy against the figures before the executable actions, and over every executed action
 of every run: transits that touched a fixed obstacle, transits that touched a movable object,
-and Random's actions that moved the target 1 cm or more.  --replicate BASE adds the checks of
-a registered replicate (docs/evaluation/REPLICATE.md): every cell complete with the trial seeds
+and Random's actions that moved the target 1 cm or more.  --replicate BASE adds the checks of a
+registered replicate (docs/evaluation/REPLICATE.md): every cell complete with the trial seeds
 of that base, every trial of one run's conditions (commit, maps, planner, simulator), no trial
-dropped or run twice, one kind of device.  --report DIR rewrites report.md and the plots of a
-results file in DIR (for a run that was stopped before its last trial); --merge DEST DIR...
-joins the results of runs split in parts (`lmjx evaluate --part K/N`, one cell a process) into
-DEST and rewrites its report: parts of other conditions (commit, maps, planner, ...) and a
-trial found twice with different records are refused in one line unless --allow-mixed (the
-report then says so)."""
+dropped or run twice, one kind of device.  --registered FILE checks every trial record against
+the registration on that page (`lmjx.evaluation.registration`): the registered commit with a
+clean tree, map digests, planner configuration, task set, simulator and seeds, and exactly one
+record per registered trial (none missing, twice, or replaced by a cell run again), every run
+registered as its arm (`lmjx evaluate --registered`), with the runs' checks.  --report DIR
+rewrites report.md and the plots of a results file in DIR (for a run that was stopped before
+its last trial); --merge DEST DIR... joins the results of runs split in parts (`lmjx evaluate
+--part K/N`, one cell a process) into DEST and rewrites its report: parts of other conditions
+(commit, maps, planner, ...) and a trial found twice with different records are refused in one
+line unless --allow-mixed (the report then says so)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-from collections import defaultdict
+from collections import Counter, defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 from lmjx.errors import LmjxError
+from lmjx.evaluation.registration import Arm, Registration, read_registration
 from lmjx.evaluation.results import Results, merge, write_results
 from lmjx.evaluation.results import read_results as load
 from lmjx.evaluation.stats import rate_text
@@ -151,10 +157,8 @@ def hard_checks(c: dict) -> list[tuple[str, bool, str]]:
 def replicate_checks(runs: dict[str, Results], base: int) -> list[tuple[str, bool, str]]:
     """The registered replicate's own checks (docs/evaluation/REPLICATE.md), over its results
     files (`runs`: path -> results): each task set complete (2 failures x 3 scenarios x 3 ASMs
-    x 15 trials, the trial seeds of `base`), every trial of one run's conditions, no trial
-    dropped or run twice, no run pooled with --allow-mixed, one kind of device."""
+    x 15 trials, the trial seeds of `base`), then `run_checks`."""
     from lmjx.evaluation.evaluate import trial_seed
-    from lmjx.evaluation.provenance import differences, differences_text
 
     out = []
     want = {(f, s, a, trial_seed(base, s, t)) for f in ("case1", "case2") for s in (1, 2, 3) for a in ASMS
@@ -165,6 +169,16 @@ def replicate_checks(runs: dict[str, Results], base: int) -> list[tuple[str, boo
         complete = not missing and not extra and len(have) == len(want)
         out.append((f"{path}: complete, {len(want)} trials of seed base {base}", complete,
                     f"{len(have)} trials, {missing} missing, {extra} not of the design"))  # fmt: skip
+    return out + run_checks(runs)
+
+
+def run_checks(runs: dict[str, Results]) -> list[tuple[str, bool, str]]:
+    """The runs' checks, over results files (`runs`: path -> results): every trial of one run's
+    conditions (the task sets aside), no trial dropped or run twice, no run pooled with
+    --allow-mixed, one kind of device."""
+    from lmjx.evaluation.provenance import differences, differences_text
+
+    out = []
     used = [(p, run) for p, res in runs.items() for run in res.runs_used()]
     recorded = [run for _, run in used if not run.get("unrecorded")]
     diffs = []
@@ -189,6 +203,103 @@ def replicate_checks(runs: dict[str, Results], base: int) -> list[tuple[str, boo
     devices = sorted({run["simulator"]["device"] for run in recorded if run["simulator"]["name"] != "none"})
     out.append(("one kind of device", len(devices) == 1 and len(recorded) == len(used),
                 "; ".join(devices) or "none recorded"))  # fmt: skip
+    return out
+
+
+def registration_checks(runs: dict[str, Results], registration: Registration) -> list[tuple[str, bool, str]]:
+    """Every trial record of the results files (`runs`: path -> results) against the
+    registration (`lmjx.evaluation.registration`): each file is the arm of its records' task
+    set, and each arm has its files; every run that made them registered as that arm (`lmjx
+    evaluate --registered`); every record at the registered commit with a clean tree,
+    its map of the registered digest, the arm's planner configuration, task set and simulator,
+    a seed of the registered base seed and trials (`trial_seed`) in one of the arm's cells;
+    exactly one record per (failure, scenario, ASM, trial): none missing, none twice, none
+    replaced by a cell run again."""
+    by_arm: dict[str, list[str]] = defaultdict(list)
+    out = []
+    for path, res in runs.items():
+        sets = sorted({str(r.get("tasks", "unknown")) for r in res.trials})
+        arm = next((a for a in registration.arms if sets == [a.tasks]), None)
+        if arm is None:
+            out.append((f"{path}: the trials of a registered arm", False, f"task sets {', '.join(sets) or 'none'}; "
+                        "registered: " + ", ".join(f"{a.name} ({a.tasks})" for a in registration.arms)))  # fmt: skip
+            continue
+        by_arm[arm.name].append(path)
+    for arm in registration.arms:
+        paths = by_arm.get(arm.name, [])
+        if not paths:
+            out.append((f"arm {arm.name}: its results given", False, f"no results file of task set {arm.tasks}"))
+            continue
+        where = ", ".join(paths)
+        other = [f"{p}: run {run['id']} ({run['trials_held']} trials)" for p in paths for run in runs[p].runs_used()
+                 if (run.get("registered") or {}).get("arm") != arm.name]  # fmt: skip
+        out.append((f"arm {arm.name} ({where}): every run registered as the arm (lmjx evaluate --registered)",
+                    not other, "; ".join(other) or "all"))  # fmt: skip
+        out += _arm_checks(arm, registration, [(p, r) for p in paths for r in runs[p].trials],
+                           sum(len(runs[p].replaced) for p in paths), where)  # fmt: skip
+    return out
+
+
+def _arm_checks(arm: Arm, registration: Registration, records: list[tuple[str, dict]], replaced: int,
+                where: str) -> list[tuple[str, bool, str]]:  # fmt: skip
+    """`registration_checks` for one arm's records (each with its file)."""
+    from lmjx.evaluation.evaluate import trial_seed
+
+    seeds = {s: {trial_seed(registration.base_seed, s, t): t for t in range(arm.trials)} for s in arm.scenarios}
+
+    def name(r: dict) -> str:
+        return f"{r['failure']}/{r['scenario']}/{r['asm']}/{r['seed']}"
+
+    def prov(r: dict) -> dict:
+        return r.get("provenance") or {}
+
+    def check(what: str, wrong: Callable[[dict], str | None]) -> tuple[str, bool, str]:
+        bad = [(p, r, why) for p, r in records if (why := wrong(r)) is not None]
+        shown = "; ".join(f"{p}: {name(r)} {why}" for p, r, why in bad[:3]) + ("; ..." if len(bad) > 3 else "")
+        figures = f"{len(bad)} of {len(records)} records differ: {shown}" if bad else f"{len(records)} records"
+        return f"arm {arm.name} ({where}): every record {what}", not bad and bool(records), figures
+
+    def commit(r: dict) -> str | None:
+        c, dirty = prov(r).get("commit", "unknown"), prov(r).get("dirty")
+        return None if c == registration.commit and dirty is not True else f"at commit {str(c)[:12]}, dirty {dirty}"
+
+    def digest(r: dict) -> str | None:
+        d, want = prov(r).get("map", {}).get("digest", "unknown"), registration.maps.get(r["failure"])
+        return None if want is not None and d == want.digest else f"map digest {str(d)[:12]}"
+
+    def planner(r: dict) -> str | None:
+        have = prov(r).get("planner") or {}
+        want = {**arm.levers, "asm": r["asm"]}
+        keys = [k for k in sorted(set(have) | set(want)) if have.get(k, "unrecorded") != want.get(k, "unregistered")]
+        return None if have and not keys else "planner " + ", ".join(f"{k} {have.get(k, 'unrecorded')}" for k in keys)
+
+    def tasks(r: dict) -> str | None:
+        t, sim = (r.get("tasks"), prov(r).get("tasks", {}).get("set")), prov(r).get("simulator")
+        ok = t == (arm.tasks, arm.tasks) and sim == arm.simulator((r["asm"],))
+        return None if ok else f"task set {t[0]} (provenance {t[1]}), simulator {sim}"
+
+    def seed(r: dict) -> str | None:
+        cell = r["failure"] in arm.failures and r["asm"] in arm.asms and r["scenario"] in seeds
+        return None if cell and r["seed"] in seeds[r["scenario"]] else "not of the registered cells and seeds"
+
+    out = [
+        check(f"at the registered commit {registration.commit[:12]}, its tree clean", commit),
+        check("on the registered map of its failure", digest),
+        check("of the registered planner configuration", planner),
+        check(f"of the task set {arm.tasks} and the simulator {arm.sim}", tasks),
+        check(f"of the registered cells and seeds (base {registration.base_seed}, {arm.trials} a cell)", seed),
+    ]
+    want = {(f, s, a, t) for f in arm.failures for s in arm.scenarios for a in arm.asms for t in range(arm.trials)}
+
+    def trial(r: dict) -> tuple:  # a trial by its number in the cell; a seed no registered trial has, by the seed
+        return r["failure"], r["scenario"], r["asm"], seeds.get(r["scenario"], {}).get(r["seed"], f"seed {r['seed']}")
+
+    held = Counter(trial(r) for _, r in records)
+    missing, twice = len(want - set(held)), sum(n - 1 for n in held.values() if n > 1)
+    out.append((f"arm {arm.name} ({where}): exactly one record per failure, scenario, ASM and trial",
+                not missing and not twice and not replaced and set(held) <= want,
+                f"{len(want)} registered, {len(records)} held: {missing} missing, {twice} twice, "
+                f"{len(set(held) - want)} not registered, {replaced} replaced by a cell run again"))  # fmt: skip
     return out
 
 
@@ -225,12 +336,18 @@ def main() -> None:
     )
     ap.add_argument("--replicate", type=int, metavar="BASE", help="add the checks of a registered replicate of "
                     "seed base BASE (docs/evaluation/REPLICATE.md)")  # fmt: skip
+    ap.add_argument("--registered", metavar="FILE", help="add the checks of every trial record against the "
+                    "registration on the page FILE (docs/evaluation/REPLICATE.md), and the runs' checks")  # fmt: skip
     ap.add_argument(
         "--simulator",
         help="the simulator's description for a rewritten report of trials without provenance (default: this "
         "machine's; e.g. 'gpu: MuJoCo Warp on NVIDIA H100 80GB HBM3, whole scene')",
     )
     args = ap.parse_args()
+    try:
+        registration = None if args.registered is None else read_registration(args.registered)
+    except LmjxError as e:
+        sys.exit(f"eval_acceptance: {e}")
     if args.merge:
         dest, *srcs = (Path(d) for d in args.merge)
         # DEST's own trials first, so that merging new runs into it never drops what it held
@@ -321,6 +438,8 @@ def main() -> None:
     ]
     if args.replicate is not None:
         overall += replicate_checks(given, args.replicate)
+    if registration is not None:
+        overall += registration_checks(given, registration) + ([] if args.replicate is not None else run_checks(given))
     print("\nacross every run given:")
     for name, ok, why in overall:
         print(f"  [{'met' if ok else 'NOT met'}] {name}: {why}")

@@ -5,6 +5,7 @@ carry their content digest; success rates come with Wilson 95 % intervals."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -20,7 +21,7 @@ import pytest
 from conftest import cli
 
 import lmjx
-from lmjx.errors import MixedRunsError
+from lmjx.errors import ConfigError, MixedRunsError
 from lmjx.evaluation import provenance
 from lmjx.evaluation.results import Results, merge, read_results, write_results
 from lmjx.evaluation.stats import rate_text, wilson
@@ -99,18 +100,128 @@ def test_maps_carry_their_content_digest(small_map, tmp_path) -> None:
 
 
 def test_the_commit_comes_from_git_or_the_environment(monkeypatch) -> None:
+    """git's commit in a checkout; on a copy without .git, LMJX_COMMIT only together with
+    LMJX_SOURCE_DIGEST, which must be the digest of the files there; without either, unknown."""
     here = provenance.code_version()
+    assert here["source_digest"] == provenance.source_digest() and len(here["source_digest"]) == 64
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=False)
     if head.returncode == 0:  # a checkout: git's commit, and whether tracked files differ from it
         assert here["commit"] == head.stdout.strip() and here["commit_source"] == "git"
         assert isinstance(here["dirty"], bool) and (here["changes"] is not None) == here["dirty"]
     monkeypatch.setattr(provenance, "_git", lambda args, cwd: None)  # a copy without its .git folder
-    monkeypatch.setenv(provenance.COMMIT_ENV, "0123abc")
+    commit, digest = "0123abc" * 5 + "01234", provenance.source_digest()
+    monkeypatch.setenv(provenance.COMMIT_ENV, commit)
+    with pytest.raises(ConfigError, match="LMJX_COMMIT is set without LMJX_SOURCE_DIGEST"):
+        provenance.code_version()  # the commit alone says nothing of the files
+    monkeypatch.setenv(provenance.SOURCE_ENV, digest)
     named = provenance.code_version()
-    assert (named["commit"], named["commit_source"], named["dirty"]) == ("0123abc", "LMJX_COMMIT", None)
+    assert (named["commit"], named["commit_source"], named["dirty"]) == (commit, "LMJX_COMMIT", None)
+    monkeypatch.setenv(provenance.SOURCE_ENV, "f" * 64)  # files other than the commit's
+    with pytest.raises(ConfigError, match=f"LMJX_SOURCE_DIGEST=ffffffffffffffff... but the source files here "
+                                          f"digest to {digest[:16]}...: they are not those of commit 0123abc0123a"):
+        provenance.code_version()  # fmt: skip
+    monkeypatch.setenv(provenance.SOURCE_ENV, digest)
+    monkeypatch.setenv(provenance.COMMIT_ENV, "0123abc")
+    with pytest.raises(ConfigError, match="full 40-digit hash"):
+        provenance.code_version()
     monkeypatch.delenv(provenance.COMMIT_ENV)
+    with pytest.raises(ConfigError, match="LMJX_SOURCE_DIGEST is set without LMJX_COMMIT"):
+        provenance.code_version()
+    monkeypatch.delenv(provenance.SOURCE_ENV)
     alone = provenance.code_version()
     assert (alone["commit"], alone["commit_source"], alone["version"]) == ("unknown", "unknown", lmjx.__version__)
+
+
+def test_the_source_digest_covers_the_code_and_its_data(tmp_path) -> None:
+    """SHA-256 over the sorted relative paths, lengths and bytes of lmjx/**/*.py,
+    kernels/**/*.py, the robots' models, the task sets' scenes and pyproject.toml; nothing
+    else there counts."""
+    files = {"pyproject.toml": b"[project]\n", "lmjx/__init__.py": b"", "lmjx/evaluation/a.py": b"x = 1\n",
+             "kernels/k.py": b"y = 2\n", "lmjx/model/assets/arm.xml": b"<mujoco/>",
+             "lmjx/sim/scenes/s.toml": b"a = 1"}  # fmt: skip
+    for name, data in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+    h = hashlib.sha256()
+    for name in sorted(files):
+        h.update(name.encode() + b"\0" + str(len(files[name])).encode() + b"\0" + files[name])
+    digest = provenance.source_digest(tmp_path)
+    assert digest == h.hexdigest()
+    for other in ("README.md", "lmjx/notes.txt", "tests/test_x.py", "lmjx/__pycache__/a.cpython-311.pyc"):
+        (tmp_path / other).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / other).write_text("not source")
+    assert provenance.source_digest(tmp_path) == digest
+    (tmp_path / "kernels" / "k.py").write_bytes(b"y = 3\n")  # a byte changed
+    changed = provenance.source_digest(tmp_path)
+    (tmp_path / "kernels" / "k.py").rename(tmp_path / "kernels" / "j.py")  # the same bytes, renamed
+    assert len({digest, changed, provenance.source_digest(tmp_path)}) == 3
+    (tmp_path / "lmjx" / "stray.py").write_text("")  # an added file, empty
+    assert provenance.source_digest(tmp_path) not in {digest, changed}
+
+
+def test_the_commit_named_for_a_copy_comes_from_a_clean_checkout(monkeypatch) -> None:
+    """`python -m lmjx.evaluation.provenance` prints LMJX_COMMIT and LMJX_SOURCE_DIGEST of a clean
+    checkout, which a copy without .git then accepts; a tree with changes or untracked source
+    files is refused."""
+    if subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, check=False).returncode:
+        pytest.skip("not a git checkout")
+    monkeypatch.setattr(provenance, "_tree_changes", lambda root: b"")
+    real = provenance._git
+    status = {"out": b""}
+    monkeypatch.setattr(provenance, "_git", lambda args, cwd: status["out"] if args[0] == "status" else real(args, cwd))
+    line = provenance.commit_environment()
+    values = dict(x.split("=", 1) for x in line.split())
+    assert set(values) == {"LMJX_COMMIT", "LMJX_SOURCE_DIGEST"} and values["LMJX_COMMIT"] == provenance.code_version()[
+        "commit"]  # fmt: skip
+    monkeypatch.setattr(provenance, "_git", lambda args, cwd: None)  # the copy, without .git
+    for k, v in values.items():
+        monkeypatch.setenv(k, v)
+    assert provenance.code_version()["commit"] == values["LMJX_COMMIT"]
+    monkeypatch.setattr(provenance, "_git", lambda args, cwd: status["out"] if args[0] == "status" else real(args, cwd))
+    status["out"] = b"?? lmjx/stray.py\n"
+    with pytest.raises(ConfigError, match="the source files differ from the commit"):
+        provenance.commit_environment()
+    status["out"] = b""
+    monkeypatch.setattr(provenance, "_tree_changes", lambda root: b"diff")
+    with pytest.raises(ConfigError, match="the source files differ from the commit"):
+        provenance.commit_environment()
+    r = subprocess.run([sys.executable, "-m", "lmjx.evaluation.provenance"], cwd=ROOT, capture_output=True, text=True,
+                       check=False)  # fmt: skip
+    if r.returncode == 0:  # this checkout is clean
+        assert r.stdout.startswith("LMJX_COMMIT=") and " LMJX_SOURCE_DIGEST=" in r.stdout
+    else:
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "error: " in r.stderr, r.stderr
+
+
+def test_an_unknown_commit_pools_with_nothing(small_map, monkeypatch) -> None:
+    """Two runs whose commits are unknown differ (nothing says their code was the same): resuming
+    and merging are refused, naming the variables that name a commit; a run matches itself."""
+    from lmjx.evaluation.evaluate import EvalConfig
+    from lmjx.evaluation.results import check_conditions
+    from lmjx.model.robot import load_robot
+
+    monkeypatch.setattr(provenance, "_git", lambda args, cwd: None)
+    for k in (provenance.COMMIT_ENV, provenance.SOURCE_ENV):
+        monkeypatch.delenv(k, raising=False)
+    robot, maps = load_robot("panda"), {"case2": lmjx.load_map(small_map)}
+    config = EvalConfig(failures=("case2",), scenarios=(1,), asms=("random",), trials=1)
+    a, b = (provenance.new_run(robot, maps, config, "lmjx evaluate ...") for _ in range(2))
+    assert a["lmjx"]["commit"] == b["lmjx"]["commit"] == "unknown"
+    assert provenance.differences(a, b) == [("commit", "unknown", "unknown")] and provenance.differences(a, a) == []
+    held = Results([a | {"trials_run": 1}], [{"failure": "case2", "scenario": 1, "asm": "random", "seed": 0,
+                                             "success": True, "run": a["id"]}])  # fmt: skip
+    with pytest.raises(MixedRunsError, match="commit \\(there unknown; here unknown\\); name the commit with "
+                                             "LMJX_COMMIT and LMJX_SOURCE_DIGEST"):  # fmt: skip
+        check_conditions(held, b, False, "out/results.json")
+    other = Results([b | {"trials_run": 1}], [{**held.trials[0], "seed": 1, "run": b["id"]}])
+    with pytest.raises(MixedRunsError, match="commit \\(before unknown; its unknown\\); run them where git"):
+        merge([("a", held), ("b", other)])
+    assert len(merge([("a", held), ("a again", held)]).trials) == 1
+    # named commits pool as before; the same commit with other source files does not
+    named = [r | {"lmjx": r["lmjx"] | {"commit": "1" * 40}} for r in (a, b)]
+    assert provenance.differences(*named) == []
+    named[1]["lmjx"]["source_digest"] = "2" * 64
+    assert provenance.differences(*named) == [("source files", a["lmjx"]["source_digest"][:12], "2" * 12)]
 
 
 def test_every_trial_records_its_provenance_and_other_conditions_are_refused(small_map, tmp_path) -> None:
@@ -126,6 +237,8 @@ def test_every_trial_records_its_provenance_and_other_conditions_are_refused(sma
     assert p["map"] == {"path": str(small_map), "digest": digest} and run["maps"]["case2"]["digest_source"] == "stored"
     assert (p["lmjx"], p["commit"]) == (lmjx.__version__, provenance.code_version()["commit"])
     assert (p["host"], p["simulator"], p["tasks"]["set"]) == (socket.gethostname(), "none", "paper")
+    assert p["device"] == run["simulator"]["device"] == "none"  # Random ran nothing on a device
+    assert p["source_digest"] == run["lmjx"]["source_digest"] == provenance.source_digest()
     assert set(p["planner"]) == {f.name for f in fields(PlannerConfig)} and p["planner"]["asm"] == "random"
     assert p["planner"]["max_sim_steps"] == MAX_SIM_STEPS == run["planning_limit"]["max_sim_steps"]
     assert run["command"] == "lmjx " + " ".join(map(str, (*args, "--out", out)))

@@ -59,7 +59,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--trials", type=_trials, default=15, metavar="N", help=f"trials per cell, 1 to {MAX_TRIALS} (default 15)"
     )
-    p.add_argument("--maps", metavar="DIR", help="folder of <failure>.h5 maps (default maps/ or maps/<robot>)")
+    p.add_argument("--maps", metavar="DIR", help="folder of <failure>.h5 (default maps/ or maps/<robot>)")
     p.add_argument("--seed", type=_base_seed, default=0, help="base seed of the trials, 0 to 42949 (default 0)")
     p.add_argument(
         "--part",
@@ -72,7 +72,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--allow-mixed",
         action="store_true",
-        help="add to an --out of other conditions (commit, maps, ...); report.md says so",
+        help="add to an --out of other conditions; report.md says so",
+    )
+    p.add_argument(
+        "--registered",
+        metavar="FILE",
+        help="refuse all but the run FILE registers (REPLICATE.md)",
     )
     p.add_argument(
         "--processes",
@@ -188,7 +193,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     made = not out.exists()  # --out is made here, once everything is checked
     check_writable(out / "results.json", "results")
     try:
-        opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed)  # a refusal: one line
+        opened = open_run(robot, maps, config, out, args.command_line, args.allow_mixed,
+                          args.registered)  # a refusal: one line  # fmt: skip
         if simulates:
             print(f"lmjx evaluate: simulator {sim_name} ({why})", file=sys.stderr)
         results = evaluate(robot, maps, config, out, say=lambda line: print(line, file=sys.stderr), opened=opened,

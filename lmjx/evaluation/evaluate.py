@@ -21,6 +21,7 @@ import numpy as np
 
 from lmjx.errors import ConfigError
 from lmjx.evaluation.provenance import new_run
+from lmjx.evaluation.registration import RegistrationError, enforce, read_registration
 from lmjx.evaluation.results import Results, check_conditions, provenance_lines, read_results, write_results
 from lmjx.evaluation.stats import rate_text, wilson
 from lmjx.evaluation.workers import run_in_processes, run_trials
@@ -107,13 +108,32 @@ def open_run(
     out: Path,
     command: str | None = None,
     allow_mixed: bool = False,
+    registered: str | Path | None = None,
 ) -> tuple[Results, dict]:
     """The results already in `out` and this run's entry (`provenance.new_run`); refused
     (`MixedRunsError`, one line) where the trials held ran under other conditions, unless
-    `allow_mixed`.  Nothing is written."""
+    `allow_mixed`.  `registered`: the page of a registered evaluation
+    (`lmjx.evaluation.registration`): refused (`RegistrationError`, one line) unless this run
+    is its arm's as registered (commit, clean tree, maps, levers, task set, seed base, trials,
+    cells, simulator), never with `allow_mixed`, and never into an `out` that holds trials of
+    a run not registered as the same arm; the run's entry then names the page and the arm.
+    Nothing is written."""
     config.validate()
+    registration = None if registered is None else read_registration(registered)
+    if registration is not None and allow_mixed:
+        raise RegistrationError(f"--registered {registered}: a registered run pools with no other conditions; "
+                                "leave out --allow-mixed")  # fmt: skip
     results = read_results(out / "results.json")
     run = new_run(robot, maps, config, command, allow_mixed)
+    if registration is not None:
+        arm = enforce(registration, run)
+        run["registered"] = {"page": str(registered), "arm": arm.name}
+        other = [r for r in results.runs_used() if (r.get("registered") or {}).get("arm") != arm.name]
+        if other:
+            raise RegistrationError(
+                f"--registered {registered}: {out / 'results.json'} holds {other[0]['trials_held']} trials of a run "
+                f"not registered as its arm {arm.name} (run {other[0]['id']}); give a fresh --out"
+            )
     check_conditions(results, run, allow_mixed, str(out / "results.json"))
     return results, run
 

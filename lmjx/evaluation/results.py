@@ -9,8 +9,10 @@ as trials of an unknown run.
 `check_conditions` is the rule for pooling: trials of runs whose conditions differ (another
 commit, other maps, another task set, planner configuration, simulator, trials per cell or
 seed base) are refused with one line naming what differs, unless pooling is allowed
-(`--allow-mixed`), which the report then says.  Resuming an evaluation (`lmjx evaluate` into
-an existing --out) and merging parts (`benchmarks/eval_acceptance.py --merge`) both apply it.
+(`--allow-mixed`), which the report then says; a run whose commit is unknown (no git, and
+the commit not named by LMJX_COMMIT with LMJX_SOURCE_DIGEST) pools with no other run.
+Resuming an evaluation (`lmjx evaluate` into an existing --out) and merging parts
+(`benchmarks/eval_acceptance.py --merge`) both apply it.
 """
 
 from __future__ import annotations
@@ -22,7 +24,14 @@ from pathlib import Path
 from typing import Any
 
 from lmjx.errors import ConfigError, MixedRunsError
-from lmjx.evaluation.provenance import COMMIT_ENV, UNKNOWN, differences, differences_text, unknown_run
+from lmjx.evaluation.provenance import (
+    COMMIT_ENV,
+    SOURCE_ENV,
+    UNKNOWN,
+    differences,
+    differences_text,
+    unknown_run,
+)
 from lmjx.runtime.fileio import write_text_atomic
 
 FORMAT = "lmjx-results"
@@ -103,11 +112,17 @@ def check_conditions(held: Results, new: dict[str, Any], allow_mixed: bool, wher
     found = _first_difference(held.runs_used(), [new])
     if found is not None:
         run, _, diff = found
+        name = f"name the commit with {COMMIT_ENV} and {SOURCE_ENV}, " if _unknown_commit(diff) else ""
         raise MixedRunsError(
             f"{where} holds {_trials(run['trials_held'])} run under other conditions: "
-            f"{differences_text(diff, 'there', 'here')}; use another --out, or --allow-mixed to pool them (the "
-            "report then says so)"
+            f"{differences_text(diff, 'there', 'here')}; {name}use another --out, or --allow-mixed to pool them "
+            "(the report then says so)"
         )
+
+
+def _unknown_commit(diff: list[tuple[str, str, str]]) -> bool:
+    """Whether `diff` (`differences`) holds a commit that is unknown (no git, none named)."""
+    return any(what == "commit" and UNKNOWN in (a, b) for what, a, b in diff)
 
 
 def _first_difference(held: list[dict[str, Any]], new: list[dict[str, Any]]) -> tuple[dict, dict, dict] | None:
@@ -139,9 +154,12 @@ def merge(parts: list[tuple[str, Results]], allow_mixed: bool = False) -> Result
         found = None if allow_mixed else _first_difference(merged.runs_used(), part.runs_used())
         if found is not None:
             _, run, diff = found
+            unknown = f"run them where git or {COMMIT_ENV} with {SOURCE_ENV} names the commit, or "
+            unknown = unknown if _unknown_commit(diff) else ""
             raise MixedRunsError(
                 f"{name} holds {_trials(run['trials_held'])} run under other conditions than those before it: "
-                f"{differences_text(diff, 'before', 'its')}; give --allow-mixed to pool them (the report then says so)"
+                f"{differences_text(diff, 'before', 'its')}; {unknown}give --allow-mixed to pool them (the report "
+                "then says so)"
             )
         for r in part.trials:
             k = trial_key(r)
@@ -203,8 +221,11 @@ def mixed_lines(results: Results) -> list[str]:
 def _code(run: dict[str, Any]) -> str:
     c = run["lmjx"]
     state = {True: f"; uncommitted changes, their digest {c.get('changes')}", False: "; clean"}.get(c["dirty"], "")
-    source = {"git": "git", COMMIT_ENV: f"named by {COMMIT_ENV}"}.get(c["commit_source"], "unknown")
-    return f"lmjx {c['version']}, commit {c['commit']} ({source}{state})"
+    source = {"git": "git", COMMIT_ENV: f"named by {COMMIT_ENV}, the files checked against {SOURCE_ENV}"}.get(
+        c["commit_source"], "unknown"
+    )
+    files = f"; source files' digest {c['source_digest'][:16]}" if c.get("source_digest") else ""
+    return f"lmjx {c['version']}, commit {c['commit']} ({source}{state}{files})"
 
 
 def provenance_lines(results: Results) -> list[str]:
