@@ -247,7 +247,8 @@ class PlanResult:
         return (
             f"PlanResult({self.failure!r}, {self.task} ({self.tasks} tasks), {self.asm}, "
             f"seed {self.seed}: "
-            f"{end} ({t.reason}) after {t.actions} actions; planning {t.planning_s:.1f} s, robot time "
+            f"{end} ({t.reason}) after {t.actions} action{'' if t.actions == 1 else 's'}; "
+            f"planning {t.planning_s:.1f} s, robot time "
             f"{t.execution_s:.1f} s; target {t.final_distance * 100:.1f} cm from the goal's centre)"
         )
 

@@ -44,7 +44,10 @@ Results go to stdout (--json for JSON), everything else to stderr.
 
 # The OpenGL library MuJoCo loads for each MUJOCO_GL (through PyOpenGL) when it is imported.
 GL_LIBRARIES = {"osmesa": "OSMesa", "egl": "EGL"}
-GL_FIX = {"osmesa": "install OSMesa (Debian: apt install libosmesa6)", "egl": "install EGL (a GPU driver's libEGL)"}
+GL_FIX = {
+    "osmesa": "install OSMesa (Debian: apt install libosmesa6)",
+    "egl": "install EGL (a GPU driver's libEGL, or Mesa's: apt install libegl1 libegl-mesa0)",
+}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -70,7 +70,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         info["reach"] = {k: s[k] for k in ("cell_m", "area_m2", "area_raw_m2", "plane_m2", "cells", "seed", "device")}
         info["reach"]["grid"] = [len(r.ys), len(r.xs)]
         lines += [
-            f"  reach map: {len(r.xs)} x {len(r.ys)} cells of {r.config.cell * 100:g} cm, seed {r.config.seed}",
+            f"  reach map: {len(r.ys)} x {len(r.xs)} cells of {r.config.cell * 100:g} cm, seed {r.config.seed}",
             f"    PM {s['area_m2']['pm']:.4f} m^2, NPM+PM {s['area_m2']['npm_pm']:.4f} m^2 (smoothed)",
         ]
     if m.edges is not None:

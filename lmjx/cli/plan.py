@@ -50,6 +50,40 @@ LEVERS_EPILOG = (
     "Research levers (the ASMs' settings, rescoring, the push weight, the servo model, ...): --set KEY=VALUE or "
     "--planner-config FILE; --help-levers lists them (docs/PLANNER.md)."
 )
+# How a trial can end: each of `lmjx.planner.records.ENDS`, what the summary prints in brackets after
+# "success" or "failure" (--json: `end`; `stopped`: what stopped the planner), and what it means
+END_MEANINGS: dict[str, str] = {
+    "goal": "the target ended in the goal region (a success), whatever stopped the planner; the planner stops "
+    "once it observes the target goal_margin (1 cm) inside the region",
+    "budget": "the action budget (the task's, or --max-actions) was spent and the target is not in the goal",
+    "planning limit": "before a decision, the planner had simulated max_sim_steps control steps (a count, the same "
+    "on every host, not seconds)",
+    "no edge over the target": "no edge of the map, and no turned copy of one, passes over the target where it lies",
+    "no feasible transit": "edges over the target were tested and none could be offered; some had a clear start "
+    "and a usable edge but no collision-free transit to that start",
+    "no feasible action": "edges over the target were tested and none could be offered, and none lacked only a "
+    "transit: their starts were blocked (in the table, in the arm, within an object's margin) or the edges "
+    "were unusable there (cut short by a fixed obstacle, or not reaching into the target)",
+    "no edge moves the target": "lazy simulated its tries and none brought the target closer, and it takes no "
+    "fallback (lazy_fallback false, as with --set asm_settings=paper)",
+    "target off the table": "an executed action pushed the target off the table; the planner stops",
+}
+ENDS_EPILOG = "How a trial ends (goal, budget, planning limit, no feasible transit, ...): --help-ends."
+
+
+def ends_text() -> str:
+    """What --help-ends prints: every end a trial can report, with its meaning."""
+    import textwrap
+
+    from lmjx.planner.records import ENDS
+
+    head = (
+        "How a trial ends: lmjx plan prints it in brackets after success or failure; --json gives it as 'end', and "
+        "what stopped the planner as 'stopped' (the two differ only where the target ended in the goal)."
+    )
+    lines = [textwrap.fill(head, 79), ""]
+    lines += [textwrap.fill(f"{end}: {END_MEANINGS[end]}", 79, subsequent_indent="    ") for end in ENDS]
+    return "\n".join(lines)
 
 
 class _HelpLevers(argparse.Action):
@@ -58,17 +92,27 @@ class _HelpLevers(argparse.Action):
     def __init__(self, option_strings: list[str], dest: str, help: str | None = None) -> None:
         super().__init__(option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0, help=help)
 
+    def text(self) -> str:
+        from lmjx.planner.levers import levers_text
+
+        return levers_text()
+
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:  # fmt: skip
         import os
 
-        from lmjx.planner.levers import levers_text
-
         try:
-            print(levers_text(), flush=True)
+            print(self.text(), flush=True)
         except BrokenPipeError:  # (`lmjx plan --help-levers | head`): not an error
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         parser.exit()
+
+
+class _HelpEnds(_HelpLevers):
+    """--help-ends: print every end a trial can report with its meaning, and exit."""
+
+    def text(self) -> str:
+        return ends_text()
 
 
 def _add_sim(p: argparse.ArgumentParser) -> None:
@@ -178,7 +222,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "simulated control steps, not seconds: the trial stops before a decision once its planner has simulated "
         "max_sim_steps of them (--set max_sim_steps=N; the same count on every host), a failure unless the "
         "target is in the goal.",
-        epilog=LEVERS_EPILOG,
+        epilog=f"{LEVERS_EPILOG}  {ENDS_EPILOG}",
     )
     p.add_argument("--map", required=True, metavar="FILE", help="a map file from lmjx build-map")
     which = p.add_mutually_exclusive_group(required=True)
@@ -194,19 +238,40 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=f"trial seed, {SEED_RANGE}: layout, 'real' world, planner choices (default 0)",
     )
     _add_planner_options(p)
-    p.add_argument("--render", metavar="FILE", help="write a rendering of the trial: .png (frames), .gif or .mp4")
+    p.add_argument("--help-ends", action=_HelpEnds, help="list how a trial can end, each end's meaning; exit")
+    p.add_argument("--render", metavar="FILE", help="write the trial as .png (frames), .gif or .mp4")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.add_argument(
-        "--strict",
-        action="store_true",
-        help=f"exit with status {EXIT_TASK_FAILED} when the target does not end in the goal (else 0 once it ran)",
+        "--strict", action="store_true", help=f"exit with status {EXIT_TASK_FAILED} if the target ends outside the goal"
     )
     _add_device(p)
     p.set_defaults(run=cmd_plan)
     return p
 
 
+def _count(n: int, noun: str) -> str:
+    """"1 action", "3 actions"."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def goal_size(args: argparse.Namespace, tasks: str) -> str:
+    """The goal region's size along x and y, as the summary gives it ("16 x 16 cm"): the task's
+    goal_half, which placing the task for a robot leaves as it is."""
+    from lmjx.sim.scenarios import scenario
+    from lmjx.sim.scenefile import read_scene
+
+    sc = read_scene(args.scene).scenario if args.scene is not None else scenario(args.scenario, tasks=tasks)
+    sx, sy = (round(2 * half * 100, 1) for half in sc.goal_half)
+    return f"{sx:g} x {sy:g} cm"
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
+    from lmjx.mapfile.openable import check_map_path
+    from lmjx.planner.levers import check_levers
+
+    levers = planner_levers(args)
+    check_levers(levers)  # (a mistake in the levers first, as plan_task finds it)
+    check_map_path(args.map)  # (a path that is no map: said before the heavy imports)
     from lmjx.api import plan_task
 
     notes = moved_notes(args)  # said once the arguments are checked (a refusal stays one line)
@@ -221,23 +286,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     quiet = os.environ.get("LMJX_PROGRESS", "").strip() == "0"
 
     def progress(k: int, budget: int, step) -> None:  # a line per executed action
-        say(f"action {k}/{budget}: target {step.distance_after * 100:.1f} cm from the goal, "
+        say(f"action {k}/{budget}: target {step.distance_after * 100:.1f} cm from the goal's centre, "
             f"decided in {step.latency_s:.1f} s")  # fmt: skip
 
     r = plan_task(
         args.map, args.scene if args.scene is not None else args.scenario, asm=args.asm, seed=args.seed, tasks=tasks,
         sim=args.sim,
         robot=_load_robot(args) if args.robot else None,  # None: the robot the map names
-        failure=args.failure, render=args.render, say=say, planner=planner_levers(args),
+        failure=args.failure, render=args.render, say=say, planner=levers,
         on_action=None if quiet else progress,
     )  # fmt: skip
     say()
     res, summary = r.trial, r.summary()
     lines = [
         f"failure {r.failure}, {r.task} ({r.tasks} tasks), {args.asm}, seed {args.seed}: "
-        f"{'success' if res.success else 'failure'} ({res.reason}) after {res.actions} actions",
+        f"{'success' if res.success else 'failure'} ({res.reason}) after {_count(res.actions, 'action')}",
         f"  planning {res.planning_s:.1f} s (wall clock), robot time {res.execution_s:.1f} s (simulated execution), "
-        f"target {res.final_distance * 100:.1f} cm from the goal's centre",
+        f"target {res.final_distance * 100:.1f} cm from the centre of the {goal_size(args, tasks)} goal",
     ]
     if res.compile_s >= 0.05:
         lines.append(f"  compiling on first use: {res.compile_s:.1f} s (not in the planning time)")

@@ -66,7 +66,7 @@ def cmd_reach(args: argparse.Namespace) -> int:
     if args.out:
         from lmjx.mapfile.write import write_reach_map
 
-        write_reach_map(args.out, result, robot)
+        write_reach_map(args.out, result, robot, overwrite=args.overwrite)
     if args.png:
         from lmjx.reach.plots import reach_heatmap
 

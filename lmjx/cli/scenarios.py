@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "scene (the arm at its park pose for case2, or for no failure if the robot has no case2) beside a top-down "
         "diagram of the layout; the scenarios sit where they do for the Panda, scaled to the robot's size.  "
         "Rendering needs OpenGL "
-        "(on a headless machine: MUJOCO_GL=osmesa with OSMesa installed, or MUJOCO_GL=egl on a GPU); without it "
+        "(on a headless machine: MUJOCO_GL=egl where EGL is installed, else MUJOCO_GL=osmesa with OSMesa); without it "
         "only the diagram is drawn.",
     )
     p.add_argument("--out", default=".", help="folder for the pictures (default: the current folder)")

@@ -23,7 +23,7 @@ the edge count and the index height are inputs; sizes from `SIZES`):
   * a window: the marks -> the edges of the pairs of ranks [off, off + out) in `out_blocks`
     blocks, and the pairs per cell (cells,);
   * empty marks.
-G, the edges of one map of marks: 32,768 on a GPU, 4,096 on a CPU for the 50 x 60 cells of
+G, the edges of one map of marks: 32,768 on a GPU, 4,096 on a CPU for the 60 x 50 cells of
 2 cm (456 MB and 57 MB); a batch of more edges is indexed in groups of G, merged on the
 host.  Work and memory per pass on a GPU: 0.8 M (state, capsule) z-tests, 98 k item slots,
 328 k sample slots x 81 cells = 27 M float64 cell tests, 3 M windows of 9 marks written

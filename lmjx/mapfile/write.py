@@ -111,17 +111,28 @@ def _write_reach(f: h5py.File, result: ReachResult) -> None:
     _dataset(g, "pos_err", result.pos_err.astype(np.float32), "distance of the solved site to its target [m]")
 
 
-def write_reach_map(path: str | Path, result: ReachResult, robot: Robot | str | Path | None = None) -> None:
+def write_reach_map(
+    path: str | Path, result: ReachResult, robot: Robot | str | Path | None = None, overwrite: bool = False
+) -> None:
     """Write a map file holding only a Reach-Ability map (what `lmjx reach --out` writes;
-    schema: maps/README.md); atomic (temp file, then rename).  `robot`: the robot the map was
-    computed for (a Robot, a name or an MJCF's path); None: the shipped robot whose model
-    the result names.
+    schema: maps/README.md); atomic (temp file, then rename), its folder made where missing.
+    `robot`: the robot the map was computed for (a Robot, a name or an MJCF's path); None: the
+    shipped robot whose model the result names.  A file already at `path` is refused with a
+    one-line `OutputPathError` unless `overwrite` is true (as `lmjx reach --out` refuses one
+    without `--overwrite`).
 
     >>> import lmjx
     >>> res = lmjx.reach_map("case2", lmjx.ReachConfig(cell=0.1))
-    >>> lmjx.write_reach_map("case2_reach.h5", res)
+    >>> lmjx.write_reach_map("out/case2_reach.h5", res)
     """
-    write_map(path, result, None, robot)
+    from lmjx.errors import OutputPathError
+
+    p = Path(path)
+    if p.is_dir():
+        raise OutputPathError(f"{p} is a folder; give the map file's name")
+    if p.exists() and not overwrite:
+        raise OutputPathError(f"{p} already exists; pass overwrite=True to replace it, or choose another path")
+    write_map(p, result, None, robot)
 
 
 def _robot_of(reach: ReachResult) -> Robot:

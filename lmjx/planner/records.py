@@ -54,10 +54,18 @@ class StepRecord:
     rescored: dict | None = None
 
     def __repr__(self) -> str:
+        # the candidates are the map's edges over the target and, with turn_edges, copies of the map's
+        # edges turned about the base joint to pass over it: they may outnumber the map's edges
         moved = "" if np.isnan(self.target_moved_m) else f", target moved {self.target_moved_m * 100:.1f} cm"
+        edge = "no action" if self.edge < 0 else f"edge {self.edge}"
+        if self.edge >= 0 and self.turn_deg:
+            edge += f" (turned {self.turn_deg} deg)"
+        n = self.candidates
+        among = f"{'of' if self.edge >= 0 else 'among'} {n:,} candidate{'' if n == 1 else 's'}"
         return (
-            f"StepRecord(edge {self.edge} of {self.candidates} candidates, {self.simulated} simulated; "
-            f"{self.distance_after * 100:.1f} cm from the goal after{moved}; transit {self.transit_route or '-'})"
+            f"StepRecord({edge} {among} (the map's edges over the target and any turned copies of its edges), "
+            f"{self.simulated:,} simulated; {self.distance_after * 100:.1f} cm from the goal's centre after{moved}; "
+            f"transit {self.transit_route or '-'})"
         )
 
     def summary(self) -> dict:
@@ -88,8 +96,10 @@ class StepRecord:
         }
 
 
-# "no feasible transit": edges over the target were tested and some lacked only a transit;
-# "no feasible action": none lacked one (their starts blocked, or the edges unusable there)
+# How a trial can end (`TrialResult.reason`, `stopped`; where each is set: `Planner.trial`; what each
+# means, as `lmjx plan --help-ends` prints it: `lmjx.cli.plan.END_MEANINGS`).  "no feasible transit":
+# edges over the target were tested and some lacked only a transit; "no feasible action": none lacked
+# only one (their starts blocked, or the edges unusable there)
 ENDS = ("goal", "budget", "planning limit", "no edge over the target", "no feasible transit",
         "no feasible action", "no edge moves the target", "target off the table")  # fmt: skip
 
@@ -112,7 +122,8 @@ class TrialResult:
     def __repr__(self) -> str:
         end = "success" if self.success else "failure"
         return (
-            f"TrialResult({end} ({self.reason}) after {self.actions} actions; planning {self.planning_s:.1f} s, "
+            f"TrialResult({end} ({self.reason}) after {self.actions} action{'' if self.actions == 1 else 's'}; "
+            f"planning {self.planning_s:.1f} s, "
             f"robot time {self.execution_s:.1f} s; target {self.final_distance * 100:.1f} cm from the goal's centre)"
         )
 

@@ -2,7 +2,7 @@
 MuJoCo's renderer into a frame strip (.png), an animation (.gif) or a video (.mp4, needs
 imageio with ffmpeg); and still images of a scene (`scene_image`).  Rendering needs OpenGL:
 on a headless Linux machine install OSMesa (Debian: libosmesa6) and set MUJOCO_GL=osmesa,
-or use EGL on a GPU machine.  Nothing here plans or simulates."""
+or use EGL where the machine has it (a GPU's driver, or Mesa's).  Nothing here plans or simulates."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def gl_problem() -> str | None:
         gl = os.environ.get("MUJOCO_GL", "unset")
         return (
             f"no OpenGL for MuJoCo (MUJOCO_GL={gl}: {type(e).__name__}); on a headless machine install OSMesa "
-            "(Debian: libosmesa6) and set MUJOCO_GL=osmesa, or MUJOCO_GL=egl on a GPU machine"
+            "(Debian: libosmesa6) and set MUJOCO_GL=osmesa, or MUJOCO_GL=egl where EGL is installed"
         )
     return None
 

@@ -132,7 +132,7 @@ class MapView:
         counts = d.edge_count()
         gui.add_markdown(
             f"**{d.path.name}**: {d.robot.key}, failure {d.failure.describe()}  \n"
-            f"{d.nx} x {d.ny} cells of {d.cell * 100:g} cm; {d.n_edges:,} edges"
+            f"{d.ny} x {d.nx} cells of {d.cell * 100:g} cm; {d.n_edges:,} edges"
         )
         with gui.add_folder("Cells"):
             labels = gui.add_dropdown("Labels", LABEL_SETS, initial_value=self.settings.labels)
