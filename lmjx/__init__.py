@@ -42,6 +42,10 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from lmjx.runtime.cpucode import pin_cpu_code
+
+pin_cpu_code()  # (before JAX starts: the same map from the same command on every x86-64 CPU)
+
 __version__ = "0.1.0"
 
 _EXPORTS = {
