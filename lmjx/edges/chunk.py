@@ -150,7 +150,7 @@ def build_bundle(
     t_start = time.perf_counter()
     n = config.n_edges()
     kernels = EdgeKernels(robot, failure, config, sharded, reach.config.object_height / 2, ik_chunk=reach.config.chunk)
-    bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress, unit="edge")
+    bar = Progress(total=n, desc=f"edges {failure.spec}", enabled=progress, unit="edge", steps_per_unit=2)
     chunks = [
         process_chunk(reach, config, robot, a, b, kernels, bar)
         for a, b in chunk_ranges(n, config.edges_per_chunk(1 if not sharded else _devices()))

@@ -347,7 +347,8 @@ def _build_map(
     t_reach = time.perf_counter() - t0
     background.wait_own()
     compiled_before = max(ks.compile_seconds for ks in kernel_sets)
-    bar = Progress(total=2 * n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge")
+    # (each edge counted twice: its start solved, then its rollout)
+    bar = Progress(total=n, desc=f"edges {failure.spec}", enabled=progress and lead, unit="edge", steps_per_unit=2)
     bar.update(2 * sum(b - a for a, b in done))
     t1 = time.perf_counter()
     writer: MapWriter | None = None

@@ -28,18 +28,26 @@ class Progress:
     """A thin tqdm wrapper whose methods are no-ops when disabled; `update` may be called
     from several threads."""
 
-    def __init__(self, total: int | None, desc: str, enabled: bool = True, unit: str = "IK") -> None:
+    def __init__(
+        self, total: int | None, desc: str, enabled: bool = True, unit: str = "IK", steps_per_unit: int = 1
+    ) -> None:
+        """`total` units of `unit` (edges, trials, ...); `steps_per_unit`: how many `update`
+        counts make one unit (a build counts each edge twice: its start solved, then its
+        rollout), so the bar shows units."""
         setting = os.environ.get(ENV, "").strip()
         on = enabled and setting != "0"
         bar = on and (setting == "1" or sys.stderr.isatty())
-        self._bar = (
-            tqdm(total=total, desc=desc, unit=unit, unit_scale=True, file=sys.stderr, dynamic_ncols=True, leave=False)
-            if bar
-            else None
-        )
+        self.per = max(1, steps_per_unit)
+        self._bar = None
+        if bar:
+            scale = True if self.per == 1 else 1 / self.per
+            counts = None if total is None else total * self.per
+            self._bar = tqdm(total=counts, desc=desc, unit=unit, unit_scale=scale, file=sys.stderr, dynamic_ncols=True,
+                             leave=False)  # fmt: skip
         self._lines = on and not bar
         self.total, self.desc, self.unit = total, desc, unit
-        self.n = 0
+        self.n = 0  # counts (`update`'s), units times steps_per_unit
+        self._printed = -1  # what the last line showed
         self._t0 = self._last = time.monotonic()
         self._lock = threading.Lock()
 
@@ -57,10 +65,12 @@ class Progress:
 
     def _line(self, now: float) -> None:
         seconds = now - self._t0
-        done = f"{self.n:,}/{self.total:,} {self.unit}" if self.total else f"{self.n:,} {self.unit}"
-        share = f" ({100 * self.n / self.total:.0f} %)" if self.total else ""
-        print(f"{self.desc}: {done}{share}, {seconds:.0f} s, {_rate(self.n, seconds, self.unit)}", file=sys.stderr)
+        units = self.n // self.per
+        done = f"{units:,}/{self.total:,} {self.unit}" if self.total else f"{units:,} {self.unit}"
+        share = f" ({100 * units / self.total:.0f} %)" if self.total else ""
+        print(f"{self.desc}: {done}{share}, {seconds:.0f} s, {_rate(units, seconds, self.unit)}", file=sys.stderr)
         sys.stderr.flush()
+        self._printed = self.n
 
     def set_description(self, desc: str) -> None:
         self.desc = desc
@@ -68,5 +78,9 @@ class Progress:
             self._bar.set_description(desc)
 
     def close(self) -> None:
+        """End the bar; off a terminal, a last line where work ended since the last one (the
+        total reached shows as 100 %)."""
         if self._bar is not None:
             self._bar.close()
+        elif self._lines and self.n and self.n != self._printed and time.monotonic() - self._t0 >= LINE_SECONDS:
+            self._line(time.monotonic())
