@@ -14,6 +14,7 @@ Nothing here computes or compiles anything.
 
 from __future__ import annotations
 
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -197,6 +198,23 @@ def stage_seconds(work: Work, platform: str, devices: int, cores: int, cached: d
     }
 
 
+BUSY_FROM = 0.5  # load average (of other work) per core from which the preflight counts it
+
+
+def busy_factor(cores: int) -> float:
+    """How much slower a CPU build runs for the other work on the machine: its load average
+    over the last minute shares the cores with the build's (a build's cores are its own at a
+    load below BUSY_FROM per core).  Measured: at a load average of 3-6 on 2 cores a build the
+    rates put at 73 s took 276 s; this gives 3.5x at a load average of 5."""
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # (no load average on this platform)
+        return 1.0
+    if load < BUSY_FROM * cores:
+        return 1.0
+    return (load + cores) / cores
+
+
 def preflight(
     n: int,
     out: Path,
@@ -212,6 +230,10 @@ def preflight(
     where = f"{devices} x {RATES['gpu'].where}" if platform != "cpu" else f"{cores} CPU cores"
     compiled = "programs cached" if cached and all(cached.values()) else "compiling included"
     basis = f"per-stage rates for {where}, {compiled}"
+    busy = busy_factor(cores) if platform == "cpu" else 1.0
+    if busy > 1.0:  # other work shares the cores: every stage slower by as much
+        stages = {k: v * busy for k, v in stages.items()}
+        basis += f"; the machine is busy (load average {os.getloadavg()[0]:.1f} on {cores} cores): {busy:.1f}x"
     parent = out.parent if str(out.parent) else Path(".")
     return Preflight(
         n,
