@@ -98,8 +98,10 @@ class MapBuild:
             "out": str(self.path),
             "seed": self.seed,
             "built": self.built,  # false: the map was already there, kept
-            # compiling, or loading compiled programs from the cache: each program once
-            "compile_seconds": round(sum(stages.values()), 4),
+            # compiling, or loading compiled programs from the cache: the wall time during which
+            # some program compiled (stages compiled side by side count once: never above the
+            # build's wall time), the stages' own seconds below
+            "compile_seconds": round(s.get("compile_wall_seconds", sum(stages.values())), 4),
             "compile_seconds_by_stage": stages,
             # other failures' programs compiled for later builds (None: not asked for)
             "compiled_for_later": s.get("compiled_for_later"),
@@ -212,6 +214,9 @@ class PlanResult:
     candidates: int | None  # Greedy's actions simulated per decision (None for the others)
     asm_settings: dict[str, Any]
     trial: TrialResult
+    # the task's scene (`lmjx.sim.scenefile.scene_record`): a shipped scenario's number and task
+    # set, else its scene file's text, with its definition's digest: the record replays alone
+    scene: dict[str, Any] = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -260,6 +265,7 @@ class PlanResult:
             "tasks": self.tasks,
             "scenario": self.scenario,
             "task": self.task,
+            "scene": self.scene,
             "asm": self.asm,
             "seed": self.seed,
             "simulator": self.simulator,
@@ -330,7 +336,7 @@ def plan_task(
     from lmjx.runtime.fileio import check_writable
     from lmjx.sim.scenarios import resolve_task
     from lmjx.sim.scenecheck import check_goal
-    from lmjx.sim.scenefile import load_scene
+    from lmjx.sim.scenefile import load_scene, scene_record
     from lmjx.types import ASMS
 
     if asm not in ASMS:
@@ -401,4 +407,5 @@ def plan_task(
         candidates=config.greedy_candidates if asm == "greedy" else None,
         asm_settings=config.settings(),
         trial=trial,
+        scene=scene_record(task, rob),
     )

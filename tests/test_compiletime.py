@@ -108,3 +108,29 @@ def test_compiling_on_another_thread_is_not_charged() -> None:
     t.join()
     assert seen["other"] > 0
     assert jax_compile_seconds() == here
+
+
+def test_programs_compiled_side_by_side_count_once_and_are_told() -> None:
+    """A build's compile seconds are the wall time during which something compiled (never
+    above the build's wall time), and a long compilation is told as it ends."""
+    from lmjx.runtime.compiletime import compile_span, compile_wall_seconds, telling_compiled, told_compiled
+
+    t0 = time.perf_counter()
+
+    def compiling() -> None:
+        with compile_span():
+            time.sleep(0.3)
+
+    threads = [threading.Thread(target=compiling) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - t0
+    assert 0.29 <= compile_wall_seconds(t0) <= wall
+    heard = []
+    with telling_compiled(lambda name, s: heard.append((name, s))):
+        told_compiled("the edges' rollout", 12.0)
+        told_compiled("a program loaded from the cache", 0.1)
+    told_compiled("after", 5.0)
+    assert heard == [("the edges' rollout", 12.0)]

@@ -134,6 +134,8 @@ def cmd_build_map(args: argparse.Namespace) -> int:
         f"(of which writing the map alongside {s['write_seconds']:.1f} s, its index {s['finish_seconds']:.1f} s)",
         f"  compile: {summary['compile_seconds']:.1f} s ("
         + ", ".join(f"{k} {v:.1f} s" for k, v in summary["compile_seconds_by_stage"].items())
+        + (", side by side" if sum(summary["compile_seconds_by_stage"].values()) > summary["compile_seconds"] + 0.05
+           else "")
         + ")"
         + _later(summary["compiled_for_later"]),
         f"  storage: {summary['bytes_per_state']:.1f} bytes per stored state "

@@ -50,6 +50,7 @@ from lmjx.edges.index_settle import merge_groups, settle_items
 from lmjx.model.robot import Robot
 from lmjx.reach.reachability import ReachResult
 from lmjx.runtime.batching import ChunkedKernel, backend
+from lmjx.runtime.compiletime import compile_span, told_compiled
 from lmjx.runtime.devices import index_devices, next_device
 
 # The states whose largest low capsule sets how many cells around a sample the index looks
@@ -210,8 +211,10 @@ class ArmIndex:
         with self._lock:
             if self._programs is None:
                 t0 = time.perf_counter()
-                self._programs = self._build()
+                with compile_span():
+                    self._programs = self._build()
                 self.compile_seconds = time.perf_counter() - t0
+                told_compiled("the spatial index", self.compile_seconds)
                 TOTALS.add(compile_seconds=self.compile_seconds)
 
     def _build(self) -> dict[str, Any]:

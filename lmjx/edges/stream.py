@@ -77,6 +77,7 @@ from lmjx.reach.reachability import ReachConfig, ReachResult, reach_ik, reach_ma
 from lmjx.runtime import threadprof
 from lmjx.runtime.batching import backend, device_description
 from lmjx.runtime.cache import cache_dir, in_jax_cache
+from lmjx.runtime.compiletime import compile_wall_seconds, telling_compiled
 from lmjx.runtime.devices import own_device
 from lmjx.runtime.fileio import check_writable
 from lmjx.runtime.progress import Progress
@@ -263,6 +264,12 @@ def _build_map(
         pre = preflight(n, out, devices, jax.default_backend(), work, cached)
         for line in pre.lines():
             say(line)
+        to_compile = [stage for stage, held in cached.items() if not held]
+        if to_compile and progress:  # (minutes in which nothing else shows: said, then each program as it is done)
+            compiling = pre.stages.get("compile", 0.0)
+            say(f"compiling the programs of {', '.join(to_compile)} for this machine (once: kept in the cache folder), "
+                f"about {_duration(compiling)}")  # fmt: skip
+            stack.enter_context(telling_compiled(lambda name, seconds: say(f"compiled {name} in {seconds:.0f} s")))
         done_bytes = sum(f.stat().st_size for f in folder.iterdir()) if folder.is_dir() else 0
         too_long = pre.seconds > DAY and not yes
         if pre.disk_bytes - done_bytes > pre.free_bytes:
@@ -455,6 +462,8 @@ def _build_map(
         if pre is not None:
             summary["preflight"] = pre.summary()
         summary["build_seconds"] = round(time.perf_counter() - t_start, 4)
+        # the wall time during which something compiled (stages compiled side by side once)
+        summary["compile_wall_seconds"] = round(compile_wall_seconds(t_start), 4)
     threadprof.write_report(sampler, writer.threads_report if writer is not None else None)
     bar.close()
     if background.presets is not None:

@@ -18,6 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from lmjx.runtime.compiletime import compile_span, told_compiled
+
 _COMPILED: dict[tuple, tuple[Callable, dict[str, tuple[tuple[int, ...], np.dtype]]]] = {}
 _COMPILING: dict[tuple, threading.Lock] = {}  # one lock per program: threads wanting it compile it once
 _COMPILING_LOCK = threading.Lock()
@@ -25,6 +27,10 @@ _COMPILING_LOCK = threading.Lock()
 # takes them instead of lowering again, whichever kernel of the program compiles it
 _LOWERED: dict[tuple, tuple[jax.stages.Lowered, list[str], bool]] = {}
 KEEP_BLOCKS = 16  # blocks a device returns its kept rows in (see ChunkedKernel)
+# what a compiled program is called where a long compile is told (`telling_compiled`)
+PROGRAM_NAMES = {"ik": "the inverse kinematics", "rollout": "the edges' rollout", "capsule_ends": "the arm's capsules",
+                 "boxes_clearance": "the clearance to a scene's boxes", "boxes_lower_bound": "its lower bound",
+                 "arm_clearance": "the arm's clearance to itself and the table"}  # fmt: skip
 
 
 def _code_version() -> str:
@@ -210,9 +216,12 @@ class ChunkedKernel:
                 t0 = time.perf_counter()
                 with _COMPILING_LOCK:
                     program = _COMPILING.setdefault(self.placed, threading.Lock())
-                with program:
+                with program, compile_span():
+                    compiled_here = self._fn is None and self.placed not in _COMPILED
                     self._build_locked()
                 self.compile_seconds += time.perf_counter() - t0
+                if compiled_here:
+                    told_compiled(PROGRAM_NAMES.get(str(self.key[0]), str(self.key[0])), time.perf_counter() - t0)
 
     def lower(self, keep: bool = True) -> tuple[jax.stages.Lowered, list[str]]:
         """The program lowered for launches of `chunk` items (what `compile` compiles), and

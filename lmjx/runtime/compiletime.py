@@ -15,7 +15,10 @@ it computed or simulated from the decision's planning time and records it apart
 
 from __future__ import annotations
 
+import contextlib
 import threading
+import time
+from collections.abc import Callable, Iterator
 from typing import Any
 
 # JAX's duration events of lowering a program and compiling it (each reported once, on the
@@ -62,3 +65,54 @@ def simulator_compile_seconds(sim: Any) -> float:
 def compile_seconds(sim: Any = None) -> float:
     """JAX's compilation seconds so far, plus `sim`'s."""
     return jax_compile_seconds() + simulator_compile_seconds(sim)
+
+
+_SPANS: list[tuple[float, float]] = []  # (start, end) of every compilation, perf_counter seconds
+
+
+@contextlib.contextmanager
+def compile_span() -> Iterator[None]:
+    """Record the block's wall-clock span as compiling (`compile_wall_seconds`)."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        with _lock:
+            _SPANS.append((t0, time.perf_counter()))
+
+
+def compile_wall_seconds(since: float, until: float | None = None) -> float:
+    """The wall-clock seconds between `since` and `until` (default: now) during which at
+    least one compilation ran: programs compiled side by side on threads count once, so the
+    figure never exceeds the wall time (their seconds summed can)."""
+    until = time.perf_counter() if until is None else until
+    with _lock:
+        spans = sorted((max(a, since), min(b, until)) for a, b in _SPANS if b > since and a < until)
+    total, end = 0.0, since
+    for a, b in spans:
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
+
+
+_TOLD: list[Callable[[str, float], None]] = []
+TELL_FROM = 1.0  # [s] a compilation this long or longer is told (`telling_compiled`); loads from the cache are not
+
+
+@contextlib.contextmanager
+def telling_compiled(note: Callable[[str, float], None]) -> Iterator[None]:
+    """Within: `note(program, seconds)` is told of every program compiled (`told_compiled`),
+    so that a long first build shows its compiling as it goes."""
+    _TOLD.append(note)
+    try:
+        yield
+    finally:
+        _TOLD.remove(note)
+
+
+def told_compiled(program: str, seconds: float) -> None:
+    """A program was compiled in `seconds`: told to those listening (`telling_compiled`)."""
+    if seconds >= TELL_FROM:
+        for note in list(_TOLD):
+            note(program, seconds)
