@@ -370,3 +370,29 @@ def _compile_ahead(request: pytest.FixtureRequest):
     thread.start()
     yield
     thread.join()
+
+
+# ------------------------------------------------------------------------------ what was skipped
+
+# how to run what a machine skips, by a word of the skip's reason
+HOW_TO_RUN = {
+    "chromium": "install Debian's Chromium (apt install chromium) and run make test again",
+    "CUDA": "run the suite on a machine with an NVIDIA GPU, JAX's CUDA plugin and MuJoCo Warp "
+    "(pip install --no-deps -r requirements.lock -r requirements-gpu.lock)",
+    "GPU": "run the suite on a machine with an NVIDIA GPU (see README.md's GPU set-up)",
+    "OSMesa": "(this machine has OSMesa: the test of a machine without it cannot run here)",
+    "git": "run the suite in a git checkout",
+}
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """After the run: each skipped test, why, and how to get it to run."""
+    skipped = terminalreporter.stats.get("skipped", [])
+    if not skipped:
+        return
+    terminalreporter.write_sep("-", f"{len(skipped)} skipped, and how to run them")
+    for report in skipped:
+        reason = str(report.longrepr[2]) if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        reason = reason.removeprefix("Skipped: ")
+        how = next((v for k, v in HOW_TO_RUN.items() if k.lower() in reason.lower()), "")
+        terminalreporter.write_line(f"{report.nodeid}: {reason}" + (f"; to run it: {how}" if how else ""))

@@ -14,10 +14,10 @@ import pytest
 from conftest import TINY_ARM, cli
 
 import lmjx
-from lmjx.errors import SceneError
+from lmjx.errors import ConfigError, SceneError
 from lmjx.model.robot import load_robot
 from lmjx.sim.scenarios import resolve_task, sample_layout, scenario
-from lmjx.sim.scenefile import read_scene, scene_text, shipped_scene
+from lmjx.sim.scenefile import load_scene, read_scene, record_task, scene_record, scene_text, shipped_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "examples" / "my_bench.toml"
@@ -162,7 +162,13 @@ BAD = [
     (_edit(BASE, "position = [0.42, 0.36]", "position = [0.42, 1.2]"), "'target' at (0.42, 1.2) is off the table"),
     (_edit(BASE, "position = [0.62, 0.56]", "position = [0.02, 0.0]"), "'shelf_post' at (0.02, 0) passes through"),
     (_edit(BASE, "distance = 0.15 ", "distance = 2.0 "), "the goal region reaches off the table"),
-]
+    (_edit(BASE, "position = [0.62, 0.56]", "position = [0.62, 1.5]"),
+     "the fixed obstacle 'shelf_post' at (0.62, 1.5) reaches off the table"),
+    # a slab under the whole goal region (centred at the target + 15 cm at 80 degrees)
+    (_edit(BASE, "size = [0.04, 0.04, 0.3]\nposition = [0.62, 0.56]",
+           "size = [0.16, 0.16, 0.02]\nposition = [0.446, 0.508]"),
+     "is covered by the fixed obstacle 'shelf_post': the target cannot rest anywhere in it"),
+]  # fmt: skip
 
 
 @pytest.mark.parametrize("text,message", BAD, ids=[f"bad{i}" for i in range(len(BAD))])
@@ -197,3 +203,24 @@ def test_a_goal_out_of_the_maps_reach_is_refused_with_the_map(plan_map, tmp_path
     )
     check = cli("scenarios", "--check", BENCH, "--map", plan_map).ok().stdout
     assert "ok (my bench: the target, 2 movable boxes, 1 fixed obstacle," in check and "goal reached on" in check
+
+
+def test_a_record_of_its_scene_rebuilds_the_task(robot):
+    """A trial's record of its scene (`scene_record`) rebuilds the task it ran (`record_task`)
+    with a matching digest: a shipped scenario by its number and task set (through its file
+    too), a user's scene by its file's text as read; an edited definition tells, a record
+    lmjx does not write is one line."""
+    shipped = resolve_task(2, robot, "hard")
+    for task in (shipped, load_scene(shipped_scene(2, "hard"), robot)):
+        rec = scene_record(task, robot)
+        assert rec["kind"] == "shipped" and (rec["scenario"], rec["tasks"]) == (2, "hard")
+        assert record_task(json.loads(json.dumps(rec)), robot, "trial") == (shipped, True)
+    mine = load_scene(BENCH, robot)
+    rec = scene_record(mine, robot)
+    assert rec["kind"] == "scene" and rec["text"] == BENCH.read_text() and rec["name"] == "my bench"
+    back, same = record_task(json.loads(json.dumps(rec)), robot, "trial")
+    assert same and back == mine and back.scenario == mine.scenario
+    edited = rec | {"text": rec["text"].replace("budget = 12", "budget = 13")}
+    assert record_task(edited, robot, "trial")[1] is False
+    with pytest.raises(ConfigError, match=r"^trial: its record of the scene is not one lmjx writes"):
+        record_task({"kind": "movie"}, robot, "trial")

@@ -34,7 +34,7 @@ import secrets
 import socket
 import subprocess
 import sys
-from dataclasses import asdict, fields
+from dataclasses import fields
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -48,6 +48,7 @@ from lmjx.types import CONTROL_DT, PlannerConfig
 if TYPE_CHECKING:
     from lmjx.mapfile.read import MapFile
     from lmjx.model.robot import Robot
+    from lmjx.sim.scenarios import Task
 
 
 class RunConfig(Protocol):
@@ -62,6 +63,7 @@ class RunConfig(Protocol):
     backend: str
     tasks: str
     part: tuple[int, int]
+    scenes: tuple[Task, ...]  # tasks from scene files (`lmjx evaluate --scenes`); empty: the shipped scenarios
 
 
 UNKNOWN = "unknown"
@@ -236,13 +238,18 @@ def map_entry(m: MapFile) -> dict[str, Any]:
             "edges": None if m.edges is None else int(m.edges.n_edges)}  # fmt: skip
 
 
-def task_digest(robot: Robot, tasks: str, scenarios: tuple[int, ...]) -> str:
-    """A digest of the scenarios' definitions as the trials face them: every object, obstacle,
-    goal region, jitter and budget of the task set, placed for the robot."""
+def task_digest(robot: Robot, tasks: str, scenarios: tuple[int, ...], scenes: tuple[Task, ...] = ()) -> str:
+    """A digest of the tasks' definitions as the trials face them: every object, obstacle, goal
+    region, jitter and budget, placed for the robot (`lmjx.sim.scenefile.definitions_digest`):
+    the shipped `scenarios` of the task set `tasks`, or, where `scenes` are given (tasks read
+    from scene files, whatever task sets they name), theirs."""
+    from lmjx.sim.scenefile import definitions_digest
+
+    if scenes:
+        return definitions_digest(t.scenario for t in sorted(scenes, key=lambda t: t.number))
     from lmjx.sim.scenarios import resolve_task
 
-    defs = {str(s): asdict(resolve_task(s, robot, tasks).scenario) for s in sorted(scenarios)}
-    return hashlib.sha256(json.dumps(defs, sort_keys=True).encode()).hexdigest()[:16]
+    return definitions_digest(resolve_task(s, robot, tasks).scenario for s in sorted(scenarios))
 
 
 def planner_fields(config: PlannerConfig, asm: str | None = None) -> dict[str, Any]:
@@ -268,7 +275,7 @@ def new_run(
         "robot": robot.key,
         "lmjx": code_version(),
         "maps": {f: map_entry(m) for f, m in sorted(maps.items()) if f in config.failures},
-        "tasks": {"set": config.tasks, "digest": task_digest(robot, config.tasks, config.scenarios)},
+        "tasks": {"set": config.tasks, "digest": task_digest(robot, config.tasks, config.scenarios, config.scenes)},
         "trials_per_cell": config.trials,
         "seed_base": config.seed,
         "part": list(config.part),

@@ -44,13 +44,17 @@ Key = tuple[str, int, str, int]  # (failure, scenario, ASM, seed)
 
 
 def trial_record(robot: Robot, config, run: dict[str, Any], key: Key, res: TrialResult) -> dict[str, Any]:
-    """The record results.json keeps of a trial."""
+    """The record results.json keeps of a trial, with its scene (`scene_record`: a shipped
+    scenario's number and task set, a scene file's text; enough to replay the trial alone)."""
+    from lmjx.sim.scenefile import scene_record
+
     f, s, a, seed = key
     return {
         "robot": robot.key,
         "tasks": config.tasks,
         "failure": f,
         "scenario": s,
+        "scene": scene_record(config.task(s, robot), robot),
         "asm": a,
         "seed": seed,
         "success": res.success,

@@ -6,9 +6,11 @@ apart from each other and from the fixed obstacles at their nominal poses (footp
 by half the gap `sample_layout` keeps), and apart in enough of the poses their jitter draws
 (`JITTER_DRAWS` seeded draws, of which at least `MIN_APART` must be: a trial's layout is
 drawn until none overlap, `sample_layout`'s 200 tries); every movable box on the table top
-at its nominal pose grown by its position jitter, and the goal region on it; no movable box
-and no fixed obstacle through the arm's base (its parts welded to the world: C MuJoCo's
-distance between their geoms and the box, and the base's origin under the box).
+at its nominal pose grown by its position jitter, every fixed obstacle's footprint on it, and
+the goal region on it; somewhere in the goal region for the target to rest, clear of the
+fixed obstacles it cannot pass under (`GOAL_POINTS` points tried); no movable box and no
+fixed obstacle through the arm's base (its parts welded to the world: C MuJoCo's distance
+between their geoms and the box, and the base's origin under the box).
 `check_goal` (needs a map): a reachable cell (NPM or PM, smoothed labels) under the goal
 region.  Nothing here simulates.
 """
@@ -32,6 +34,8 @@ GAP = 0.004  # [m] `sample_layout`'s gap between footprints
 JITTER_DRAWS = 200  # poses drawn to check that the jitter leaves room
 MIN_APART = 10  # of which at least this many must be apart (5 %: 200 tries fail with odds under 4e-5)
 BASE_HEIGHT = 0.05  # [m] a fixed obstacle whose underside is lower than this over the base's origin blocks it
+GOAL_POINTS = 41  # points along each side of the goal region where the target's centre is tried
+EDGE_TOL = 1e-9  # [m] a footprint flush with the table's edge is on the table
 
 
 def _polygons(half: np.ndarray, poses: np.ndarray, grow: float) -> np.ndarray:
@@ -136,12 +140,54 @@ def check_geometry(task: Task, robot: Robot, where: str) -> None:
             raise SceneError(f"{where}: '{b.name}' at ({b.x:g}, {b.y:g}) is off the table (its top spans x "
                              f"{lo[0]:g} to {hi[0]:g}, y {lo[1]:g} to {hi[1]:g} m, jitter included); move it onto "
                              "the table")  # fmt: skip
+    for f in fixed:
+        corners = _polygons(np.array(f.half), np.array([f.x, f.y, f.yaw]), 0.0)
+        if np.any(corners < lo - EDGE_TOL) or np.any(corners > hi + EDGE_TOL):
+            raise SceneError(f"{where}: the fixed obstacle '{f.name}' at ({f.x:g}, {f.y:g}) reaches off the table "
+                             f"(its top spans x {lo[0]:g} to {hi[0]:g}, y {lo[1]:g} to {hi[1]:g} m); move it onto the "
+                             "table")  # fmt: skip
     g_lo = np.array(sc.goal_center) - np.array(sc.goal_half)
     g_hi = np.array(sc.goal_center) + np.array(sc.goal_half)
     if np.any(g_lo < lo) or np.any(g_hi > hi):
         raise SceneError(f"{where}: the goal region reaches off the table (its top spans x {lo[0]:g} to {hi[0]:g}, "
                          f"y {lo[1]:g} to {hi[1]:g} m); move the goal onto the table")  # fmt: skip
+    covering = goal_cover(task)
+    if covering:
+        (gx, gy), names = sc.goal_center, " and ".join(f"'{f.name}'" for f in covering)
+        raise SceneError(f"{where}: the goal region centred at ({gx:g}, {gy:g}) is covered by the fixed obstacle"
+                         f"{'s' if len(covering) > 1 else ''} {names}: the target cannot rest anywhere in it; move "
+                         "the goal or the obstacle")  # fmt: skip
     _check_base(task, robot, where)
+
+
+def goal_cover(task: Task) -> tuple[Box, ...]:
+    """The fixed obstacles that leave the target no place in the goal region, most of the
+    region first (empty where it has one).  The target's centre is tried at `GOAL_POINTS` x
+    `GOAL_POINTS` points over the region, edges included (a centre on its edge is in it:
+    `lmjx.sim.scenarios.in_goal`); a point is taken where the target, at any yaw, would overlap a fixed obstacle
+    it cannot pass under (as `sample_layout` tells: one higher than the target is tall, the
+    tunnel's roof, is above it): where the point lies closer to the obstacle's footprint than
+    the target's smaller half side."""
+    sc = task.scenario
+    t = sc.target
+    low = [f for f in sc.fixed if not f.zc - f.half[2] > t.half[2] * 2]
+    if not low:
+        return ()
+    (cx, cy), (hx, hy) = sc.goal_center, sc.goal_half
+    gx, gy = np.meshgrid(np.linspace(cx - hx, cx + hx, GOAL_POINTS), np.linspace(cy - hy, cy + hy, GOAL_POINTS))
+    pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    reach = min(t.half[0], t.half[1])  # the target covers this disc about its centre at any yaw
+    taken = np.zeros((len(low), len(pts)), bool)
+    for k, f in enumerate(low):
+        c, s = math.cos(f.yaw), math.sin(f.yaw)
+        d = pts - [f.x, f.y]
+        local = np.stack([d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c], axis=1)
+        out = np.maximum(np.abs(local) - np.array(f.half[:2]), 0.0)
+        taken[k] = np.hypot(out[:, 0], out[:, 1]) < reach
+    if not taken.any(axis=0).all():
+        return ()
+    order = np.argsort(-taken.sum(axis=1), kind="stable")
+    return tuple(low[k] for k in order if taken[k].any())
 
 
 def _check_base(task: Task, robot: Robot, where: str) -> None:

@@ -7,23 +7,40 @@ the fixed obstacles; the goal region; the action budget.  `read_scene` checks ev
 key and the fix) and gives the scenario as written; `load_scene` places it for a robot and
 checks its geometry before anything is simulated (`lmjx.sim.scenecheck`); `scene_text`
 writes a scenario back in the same format, floats exactly (the shipped scenarios'
-files, lmjx/sim/scenes/, are its output: `shipped_scene`).  Positions are metres in the
+files, lmjx/sim/scenes/, are its output: `shipped_scene`).  A task read from a file is a
+`SceneTask`: the Task with the file's text, so that every record of a trial can carry its
+scene (`scene_record`: a shipped scenario's number and task set, else the file's text, each
+with `scene_digest`, the digest of the task's definition) and a trial can be rebuilt from its
+record alone (`record_task`).  Positions are metres in the
 robot's base frame on the table top (x forward, y to the robot's left), yaws radians about
 z.  Nothing here simulates.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
 import tomllib
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lmjx.errors import SceneError
-from lmjx.sim.scenarios import FIXED_RGBA, OBSTACLE_RGBA, TARGET_RGBA, TASK_SETS, Box, Scenario, Task, placed
+from lmjx.errors import ConfigError, SceneError
+from lmjx.sim.scenarios import (
+    FIXED_RGBA,
+    OBSTACLE_RGBA,
+    SCENARIOS,
+    TARGET_RGBA,
+    TASK_SETS,
+    Box,
+    Scenario,
+    Task,
+    placed,
+    resolve_task,
+)
 
 if TYPE_CHECKING:
     from lmjx.mapfile.read import MapFile
@@ -84,21 +101,41 @@ GOAL = {
 }
 
 
+@dataclass(frozen=True, eq=False)
+class SceneTask(Task):
+    """A Task read from a scene file, with the file's text as read (`text`) and its path
+    (`file`): what a trial's record keeps of its scene (`scene_record`).  It equals the Task
+    of the same definition, robot and name, whatever file it came from (the text is where it
+    came from, not what the task is)."""
+
+    text: str = ""
+    file: str = ""
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Task):
+            return NotImplemented
+        return (self.scenario, self.robot, self.name) == (other.scenario, other.robot, other.name)
+
+    __hash__ = Task.__hash__
+
+
 @dataclass(frozen=True)
 class SceneFile:
     """A scene file as written: its scenario (positions as the file gives them), what it is
-    called, and whether its positions scale with the robot's size."""
+    called, whether its positions scale with the robot's size, and its text as read."""
 
     path: Path
     scenario: Scenario
     name: str
     scale_with_robot: bool
+    text: str = ""
 
-    def task(self, robot: Robot) -> Task:
+    def task(self, robot: Robot) -> SceneTask:
         """The scene placed for `robot` (its positions scaled by the robot's `task_scale`
-        where `scale_with_robot`), as the Task the planner and the evaluation take."""
+        where `scale_with_robot`), as the Task the planner and the evaluation take (with the
+        file's text: `SceneTask`)."""
         sc = placed(self.scenario, robot.profile.task_scale) if self.scale_with_robot else self.scenario
-        return Task(sc, robot.key, self.name)
+        return SceneTask(sc, robot.key, self.name, text=self.text, file=str(self.path))
 
 
 class _Reader:
@@ -190,6 +227,12 @@ def read_scene(path: str | Path) -> SceneFile:
         raise SceneError(f"scene {p}: is a folder; give a scene file (docs/SCENES.md)") from None
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f"scene {p}: cannot be read ({type(e).__name__}); give a readable TOML file") from None
+    return parse_scene(text, p)
+
+
+def parse_scene(text: str, p: Path) -> SceneFile:
+    """The scene file whose text is `text` (`p`: its path, the name messages give it and the
+    scene's default name), every key checked, as `read_scene` reads it."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -260,7 +303,7 @@ def read_scene(path: str | Path) -> SceneFile:
         budget=budget,
         table_friction=r.number(table, "friction", "table", 0.5, 0.0, 10.0, above=True),
     )
-    return SceneFile(p, sc, name, scale)
+    return SceneFile(p, sc, name, scale, text)
 
 
 def load_scene(path: str | Path, robot: Robot | str | Path | None = None, map_file: MapFile | None = None) -> Task:
@@ -343,3 +386,73 @@ def scene_text(sc: Scenario, name: str, scale_with_robot: bool = False, header: 
         out += ["", "[[fixed]]", *_box_lines(b, False, FIXED_RGBA, name=True)]
     out += ["", "[goal]", f"center = {_vec(sc.goal_center)}", f"size = {_vec(2 * h for h in sc.goal_half)}", ""]
     return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------ a trial's record of its scene
+
+
+def definitions_digest(scenarios: Iterable[Scenario]) -> str:
+    """A digest of scenarios' definitions as trials face them (every object, obstacle, goal
+    region, jitter and budget, placed for the robot): SHA-256 of their fields
+    (`dataclasses.asdict`, keyed by their numbers) as JSON with sorted keys, its first 16 hex
+    digits.  The same definition gives the same digest whether it was resolved from a shipped
+    scenario or read from a file."""
+    defs = {str(sc.number): asdict(sc) for sc in scenarios}
+    return hashlib.sha256(json.dumps(defs, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def scene_digest(task: Task) -> str:
+    """The digest of one task's definition (`definitions_digest`)."""
+    return definitions_digest([task.scenario])
+
+
+def is_shipped(task: Task, robot: Robot) -> bool:
+    """Whether `task` is a shipped scenario of a task set, placed for `robot`, definition and all."""
+    if task.number not in SCENARIOS or task.tasks not in TASK_SETS or task.robot != robot.key:
+        return False
+    return resolve_task(task.number, robot, task.tasks).scenario == task.scenario
+
+
+def scene_record(task: Task, robot: Robot) -> dict:
+    """What a trial's record keeps of its scene, enough to rebuild the task (`record_task`):
+    a shipped scenario (`is_shipped`) as its number and task set; any other task as the text
+    of its scene file (a `SceneTask`'s as read, else the one `scene_text` writes of it), its
+    name, its file and its number; both with `scene_digest`."""
+    digest = scene_digest(task)
+    if is_shipped(task, robot):
+        return {"kind": "shipped", "scenario": task.number, "tasks": task.tasks, "digest": digest}
+    if isinstance(task, SceneTask) and task.text:
+        text, file = task.text, task.file or None
+    else:
+        text, file = scene_text(task.scenario, task.name), None
+    return {"kind": "scene", "name": task.name, "file": file, "number": task.number, "text": text, "digest": digest}
+
+
+def record_task(scene: object, robot: Robot, where: str) -> tuple[Task, bool]:
+    """The task a record's scene (`scene_record`) describes, placed for `robot`, and whether
+    its definition has the digest the record gives (False: the record was made by another
+    version of lmjx, or edited).  Its geometry is not checked again: the trial ran on it.  A
+    scene that cannot be read is a one-line ConfigError or SceneError starting with `where`."""
+    if not isinstance(scene, dict) or scene.get("kind") not in ("shipped", "scene"):
+        raise ConfigError(f"{where}: its record of the scene is not one lmjx writes; plan the trial again with "
+                          "lmjx plan --json or lmjx evaluate")  # fmt: skip
+    if scene["kind"] == "shipped":
+        n, tasks = scene.get("scenario"), scene.get("tasks")
+        if n not in SCENARIOS or tasks not in TASK_SETS:
+            raise ConfigError(f"{where}: its scene names scenario {n!r} of the task set {tasks!r}, which this lmjx "
+                              "does not ship; view it with the lmjx that ran it")  # fmt: skip
+        task = resolve_task(int(n), robot, str(tasks))
+    else:
+        text, name = scene.get("text"), str(scene.get("name") or "scene")
+        if not isinstance(text, str):
+            raise ConfigError(f"{where}: its scene lacks the scene file's text; plan the trial again with lmjx plan "
+                              "--json or lmjx evaluate")  # fmt: skip
+        path = Path(str(scene.get("file") or f"{name}.toml"))
+        try:
+            task = parse_scene(text, path).task(robot)
+        except SceneError as e:
+            raise SceneError(f"{where}: its scene cannot be read ({e})") from None
+        number = scene.get("number")
+        if isinstance(number, int) and number and not task.number:  # numbered by `lmjx evaluate --scenes`
+            task = replace(task, scenario=replace(task.scenario, number=number))
+    return task, scene_digest(task) == scene.get("digest")
