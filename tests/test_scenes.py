@@ -224,3 +224,25 @@ def test_a_record_of_its_scene_rebuilds_the_task(robot):
     assert record_task(edited, robot, "trial")[1] is False
     with pytest.raises(ConfigError, match=r"^trial: its record of the scene is not one lmjx writes"):
         record_task({"kind": "movie"}, robot, "trial")
+
+
+def test_evaluate_runs_a_users_scene_beside_a_shipped_one(plan_map, tmp_path, robot):
+    """`lmjx evaluate --scenes` with a hand-written scene and a shipped one (the task sets
+    'custom+paper'): its task digest is that of the scenes' definitions, the report names
+    the user's scene, each record keeps its scene."""
+    from lmjx.evaluation.provenance import task_digest
+
+    out = tmp_path / "ev"
+    cli("evaluate", "--failures", "case2", "--asms", "random", "--trials", "1", "--max-actions", "1",
+        "--maps", plan_map.parent, "--out", out, "--scenes", BENCH, shipped_scene(1, "paper")).ok()  # fmt: skip
+    data = json.loads((out / "results.json").read_text())
+    run, trials = data["runs"][0], data["trials"]
+    assert run["tasks"]["set"] == "custom+paper" and len(trials) == 2
+    from lmjx.cli.evaluate import scene_tasks
+
+    scenes = scene_tasks([str(BENCH), str(shipped_scene(1, "paper"))], robot)
+    assert run["tasks"]["digest"] == task_digest(robot, "custom+paper", (2, 1), tuple(scenes))
+    kinds = {t["scenario"]: t["scene"]["kind"] for t in trials}
+    assert kinds == {1: "shipped", 2: "scene"}
+    report = (out / "report.md").read_text()
+    assert "| case2 | 2 (my bench) | random |" in report and "scenario 2 is my bench (" in report

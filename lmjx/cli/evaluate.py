@@ -151,6 +151,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         open_run,
         plots,
         report_markdown,
+        scenario_label,
+        scene_names,
         summarize,
     )
     from lmjx.evaluation.provenance import simulator_description
@@ -214,13 +216,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     write_text_atomic(out / "report.md", report_markdown(results, config, simulator_description(sim_name), robot))
     plots(records, out)
     rows = summarize(records)
+    names = scene_names(records)
     lines = [
-        f"{len(records)} trials ({config.tasks} tasks); results in {out}/results.json, report in {out}/report.md",
+        f"{len(records)} trial{'' if len(records) == 1 else 's'} ({config.tasks} tasks); results in "
+        f"{out}/results.json, report in {out}/report.md",
         f"  simulator {sim_name} ({why}), greedy {config.planner.greedy_candidates} candidates",
         "  task time: planning (wall clock) + robot time (simulated execution), mean over the trials",
     ]
     lines += [
-        f"  {r['failure']} scenario {r['scenario']} {r['asm']:>6}: {rate_text(r['successes'], r['trials'])}, "
+        f"  {r['failure']} scenario {scenario_label(r['scenario'], names)} {r['asm']:>6}: "
+        f"{rate_text(r['successes'], r['trials'])}, "
         f"task {r['task_s_mean']:.1f} s"
         for r in rows
     ]

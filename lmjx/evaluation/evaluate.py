@@ -273,6 +273,7 @@ def report_markdown(
     counts = sorted({r["trials"] for r in rows})
     per_cell = "0" if not counts else str(counts[0]) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}"
     planned = _planned(runs, config)
+    names = scene_names(records)
     tasks = ", ".join(sorted({str(r.get("tasks", config.tasks)) for r in records})) or config.tasks
     sims = sorted({r["simulator"]["description"] for r in runs if r["simulator"]["name"] != "none"})
     planner = runs[0]["planner"] if runs else {k: v for k, v in config.planner.__dict__.items() if k != "asm"}
@@ -294,12 +295,15 @@ def report_markdown(
         "are charged to each trial in proportion to its candidates (its planning time).  Success: successes of "
         "trials, the rate and its Wilson 95 % interval.",
         "",
+        *(["Scenes (from scene files; each trial's record keeps the file's text): "
+           + "; ".join(f"scenario {n} is {v}" for n, v in sorted(names.items())) + ".", ""] if names else []),
         "| failure | scenario | ASM | success | actions (mean, successes) | planning s | execution s | task s |",
         "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         lines.append(
-            f"| {r['failure']} | {r['scenario']} | {r['asm']} | {rate_text(r['successes'], r['trials'])} | "
+            f"| {r['failure']} | {scenario_label(r['scenario'], names)} | {r['asm']} | "
+            f"{rate_text(r['successes'], r['trials'])} | "
             f"{_num(r['actions_mean_success'])} | {r['planning_s_mean']:.1f} | {r['execution_s_mean']:.1f} | "
             f"{r['task_s_mean']:.1f} |"
         )
@@ -317,13 +321,32 @@ def report_markdown(
         acts = [x for r in rs for x in r.get("steps", [])]
         moved = [x for x in acts if x.get("target_moved_m") is not None]
         lines.append(
-            f"| {f} | {sc} | {a} | {', '.join(f'{n} {e}' for e, n in sorted(ends.items(), key=lambda kv: -kv[1]))} "
+            f"| {f} | {scenario_label(sc, names)} | {a} | "
+            f"{', '.join(f'{n} {e}' for e, n in sorted(ends.items(), key=lambda kv: -kv[1]))} "
             f"| {len(acts)} | {_share(sum(x['target_moved_m'] >= 0.01 for x in moved), len(moved))} "
             f"| {_share(sum(bool(x.get('transit_contacts')) for x in acts), len(acts))} "
             f"| {_share(sum(bool(x.get('transit_hit_fixed')) for x in acts), len(acts))} |"
         )
     lines += ["", f"The paper (real robot): {PAPER_NOTES}", "", "![](bubble.png)", "", "![](actions.png)", ""]
     return "\n".join(lines)
+
+
+def scene_names(records: list[dict]) -> dict[int, str]:
+    """The scenarios that came from scene files (`lmjx evaluate --scenes`), by number: the
+    scene's name and, where the record keeps it, its file ("my bench (examples/my_bench.toml)").
+    Shipped scenarios are left out: their numbers name them."""
+    out: dict[int, str] = {}
+    for r in records:
+        sc = r.get("scene")
+        if isinstance(sc, dict) and sc.get("kind") == "scene":
+            where = f" ({sc['file']})" if sc.get("file") else ""
+            out.setdefault(int(r["scenario"]), str(sc.get("name") or "scene") + where)
+    return out
+
+
+def scenario_label(scenario: int, names: dict[int, str]) -> str:
+    """A scenario as tables name it: its number, with its scene's name where it has one."""
+    return f"{scenario} ({names[scenario].split(' (')[0]})" if scenario in names else str(scenario)
 
 
 def _trials(n: int) -> str:
