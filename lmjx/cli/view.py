@@ -1,6 +1,7 @@
-"""`lmjx view`: an interactive 3D view in the browser of a map, a trial or an evaluation
-(viser: a server on this machine, drawn by the browser, no OpenGL needed here; through an
-SSH tunnel from a GPU server too), or the same scene as one self-contained HTML file."""
+"""`lmjx view`: an interactive 3D view in the browser of a map, a scene file, a trial or an
+evaluation (viser: a server on this machine, drawn by the browser, no OpenGL needed here;
+through an SSH tunnel from a GPU server too), or the same scene as one self-contained HTML
+file with its title and legend."""
 
 from __future__ import annotations
 
@@ -53,15 +54,20 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "view",
-        help="an interactive 3D view in the browser of a map, a trial or an evaluation",
+        help="an interactive 3D view in the browser of a map, a scene file, a trial or an evaluation",
         description="Serve an interactive 3D view on this machine and open it in any browser (through an SSH tunnel "
         "from a remote server: ssh -L 8080:localhost:8080 HOST). A map (.h5): the table, the arm in its failure's "
-        "park pose, the reach map's cells (PM green, NPM orange) and, for a selected cell (click it), the edges "
-        "whose arm acts there. A trial (lmjx plan --json output, or --trial of an evaluation's results.json): "
-        "replayed in its scenario, with a time slider. An evaluation folder: its report and each of its trials. "
-        "Needs viser: pip install -e '.[view]'.",
+        "park pose, the reach map's cells (PM green, NPM blue, unreachable grey, as lmjx reach --png draws them) "
+        "and, for a selected cell (click it), the edges whose arm acts there. A scene file (.toml): the table, the "
+        "target, the movable boxes, the fixed obstacles and the goal region before planning; with --map, the "
+        "reach cells under them. A trial (lmjx plan --json output, or --trial of an evaluation's results.json): "
+        "replayed in its scene, with a time slider. An evaluation folder: its report and each of its trials. "
+        "Every page has a title and a legend of its colours. Needs viser: pip install -e '.[view]'.",
     )
-    p.add_argument("path", help="a map file (.h5), a trial record or results.json (.json), or an evaluation folder")
+    p.add_argument(
+        "path",
+        help="a map file (.h5), a scene file (.toml), a trial record or results.json (.json), or an evaluation folder",
+    )
     p.add_argument(
         "--trial", metavar="F/S/ASM/SEED", help="the trial of results.json to show, e.g. case2/1/greedy/1000"
     )
@@ -70,7 +76,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="append",
         metavar="PATH",
         help="a trial's map (repeat for an evaluation of several failures; default: maps/<failure>.h5, "
-        "where lmjx build-map writes it)",
+        "where lmjx build-map writes it); a scene file's: its reach cells are drawn and its goal checked against it",
     )
     p.add_argument(
         "--cell",
@@ -130,7 +136,11 @@ def _kind(path: Path) -> str:
         return "map"
     if path.suffix.lower() == ".json":
         return "trial"
-    raise ConfigError(f"{path} is not an lmjx map (.h5), a trial record (.json) or an evaluation folder")
+    if path.suffix.lower() == ".toml":
+        return "scene"
+    raise ConfigError(
+        f"{path} is not an lmjx map (.h5), a scene file (.toml), a trial record (.json) or an evaluation folder"
+    )
 
 
 def _say(line: str) -> None:
@@ -152,6 +162,8 @@ def _load(args: argparse.Namespace, kind: str, path: Path) -> tuple[Any, str]:
             data.close()
             raise ConfigError(f"--cell {args.cell[0]},{args.cell[1]} is off the map's {data.ny} x {data.nx} cells")
         return data, f"map {path}"
+    if kind == "scene":
+        return _scene(args, path), f"scene {path}"
     if kind == "trial":
         from lmjx.view.trialrecord import read_trial
 
@@ -161,6 +173,35 @@ def _load(args: argparse.Namespace, kind: str, path: Path) -> tuple[Any, str]:
     records = results_records(path / "results.json")
     picked = _replayed(args, pick_trial(records, args.trial, path / "results.json")) if args.trial else None
     return picked, f"evaluation {path}"
+
+
+def _scene(args: argparse.Namespace, path: Path) -> dict[str, Any]:
+    """A scene file's task, read and checked as lmjx plan --scene checks it (with --map: its
+    goal against the map's reach), the arm's pose and the map's reach cells."""
+    from lmjx.errors import ConfigError
+    from lmjx.sim.scenefile import load_scene
+
+    if args.trial is not None:
+        raise ConfigError("--trial picks a trial of an evaluation (results.json or its folder), not of a scene file")
+    if args.map and len(args.map) > 1:
+        raise ConfigError("a scene file is drawn over one map: give --map once")
+    if not args.map:
+        robot = _robot(args)
+        if robot is None:
+            from lmjx.model.robot import load_robot
+
+            robot = load_robot("panda")
+        return {"task": load_scene(path, robot), "robot": robot, "q": robot.ready.copy(), "reach": None, "failure": ""}
+    from lmjx.mapfile.read import load_map
+    from lmjx.planner.clearance import park_pose
+
+    with load_map(args.map[0], _robot(args), with_edges=False) as m:
+        assert m.robot is not None
+        if m.reach is None:
+            raise ConfigError(f"{m.path} holds no reach map; give a map from lmjx build-map or lmjx reach")
+        task = load_scene(path, m.robot, m)
+        return {"task": task, "robot": m.robot, "q": park_pose(m.robot, m.failure), "reach": m.reach,
+                "failure": m.failure.spec}  # fmt: skip
 
 
 def _replayed(args: argparse.Namespace, record: Any) -> Any:
@@ -191,6 +232,11 @@ def _draw(server: Any, args: argparse.Namespace, kind: str, path: Path, loaded: 
         draw = DRAWINGS[1] if args.draw == "arm" else DRAWINGS[0]
         settings = MapViewSettings(cap=args.edges, quantity=args.color_by, drawing=draw, select=args.cell)
         return MapView(server, loaded, settings)
+    if kind == "scene":
+        from lmjx.view.scene import SceneView
+
+        return SceneView(server, loaded["task"], loaded["robot"], loaded["q"], loaded["reach"], str(path),
+                         loaded["failure"])  # fmt: skip
     if kind == "trial":
         from lmjx.view.trial import TrialView
 
@@ -233,7 +279,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             trial = view if isinstance(view, TrialView) else getattr(view, "trial", None)
             if trial is not None:  # the trial plays back on viser's own timeline
                 trial.record_playback(serializer)
-            size = write_html(serializer, args.html)
+            size = write_html(serializer, args.html, getattr(view, "page", None))
             summary = {"kind": kind, "shows": what, "html": str(args.html), "bytes": size}
             print(
                 json.dumps(summary, indent=2) if args.json else f"{what}: written to {args.html} ({size / 1e6:.1f} MB)"

@@ -16,8 +16,9 @@ from matplotlib.patches import Patch
 
 from lmjx.reach.reachability import NPM, PM, UNREACHABLE, ReachResult
 from lmjx.runtime.fileio import atomic_path
+from lmjx.view.style import LABEL_HEX
 
-COLORS = {UNREACHABLE: "#d9d9d9", NPM: "#56B4E9", PM: "#009E73"}
+COLORS = {level: LABEL_HEX[level] for level in (UNREACHABLE, NPM, PM)}  # the one scheme of every picture
 
 
 def reach_heatmap(result: ReachResult, path: str | Path, fmt: str = "png") -> None:

@@ -1,6 +1,7 @@
 """The evaluation view: an evaluation folder's report table (report.md's, else one made from
-results.json) and a list of its trials, each opened as a trial view (replayed on its
-failure's map) in the same page."""
+results.json, as `lmjx evaluate` writes it: `lmjx.view.trialrecord.results_records`) and a
+list of its trials, each opened as a trial view (replayed on its failure's map, in its
+scene) in the same page."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any
 
 from lmjx.errors import LmjxError
 from lmjx.mapfile.read import MapFile, load_map
+from lmjx.view.legend import Page
 from lmjx.view.replay import Replay, frame_at, replay
 from lmjx.view.trial import ROOT, TrialView
 from lmjx.view.trialrecord import TrialRecord, from_dict, map_for, results_records
@@ -97,6 +99,13 @@ class EvaluationView:
         with self.folder_handle:
             self.trial = TrialView(self.server, rep, at=frame_at(at, len(rep.frames)))
         return self.trial
+
+    @property
+    def page(self) -> Page:
+        """The shown trial's page (its title and legend), else the evaluation's."""
+        if self.trial is not None:
+            return self.trial.page
+        return Page(f"Evaluation {self.folder}", (f"{len(self.records)} trials; open one with --trial F/S/ASM/SEED",))
 
     def tick(self) -> None:
         if self.trial is not None:

@@ -1,8 +1,9 @@
 """The map view: the table, the arm in its failure's park pose (the locked joints at their
-angles), the Reach-Ability map's cells at their true positions (one instanced mesh per
-label: PM green, NPM orange), and, for a selected cell, the edges whose whole arm acts over
-it (the map's spatial index): each edge's interaction-point path, or the arm swept along
-it, coloured by a chosen quantity.
+angles), the Reach-Ability map's cells at their true positions (one mesh per label, in
+the colours of `lmjx.view.style`: PM green, NPM blue, unreachable grey), and, for a selected
+cell, the edges whose whole arm acts over it (the map's spatial index): each edge's
+interaction-point path, or the arm swept along it, coloured by a chosen quantity.  The
+camera frames the cells and the arm; a legend says what each colour is.
 
 A cell is selected by clicking it, with the GUI's cell picker, or at start (`select`).
 Only the selected cell's edges are read from the file (`MapData.cell_edges`)."""
@@ -16,9 +17,10 @@ from typing import Any
 import numpy as np
 
 from lmjx.view import style
+from lmjx.view.legend import Page, add_legend
 from lmjx.view.mapdata import CellEdges, MapData
 from lmjx.view.options import DRAWINGS, LABEL_SETS, QUANTITIES, SHOWN
-from lmjx.view.shapes import ArmPoser, arm_geoms, box, concatenate, geom_mesh, geom_rgb
+from lmjx.view.shapes import ArmPoser, Mesh, arm_geoms, box, concatenate, geom_mesh, geom_rgb
 
 SWEPT_POSES = 5  # arm poses drawn per edge when the arm is swept along it
 SWEPT_CAP = 30  # edges drawn with the swept arm, at most (each is a mesh of its own)
@@ -37,8 +39,71 @@ class MapViewSettings:
     select: tuple[int, int] | None = None  # (iy, ix); None: the cell the most edges act over
 
 
+LEVELS = (("unreachable", 0, style.UNREACHABLE), ("npm", 1, style.NPM), ("pm", 2, style.PM))  # (node, label, colour)
+
+
 def robot_qpos(robot) -> np.ndarray:
     return np.array([robot.mj.joint(n).qposadr[0] for n in robot.joint_names], np.int64)
+
+
+def draw_arm(server: Any, root: str, poser: ArmPoser, q: np.ndarray) -> None:
+    """The arm's drawn geoms (`shown_geoms`: its meshes, else its capsules) at `q`, under
+    `root` (one node per geom, named after it)."""
+    m = poser.m
+    pos, quat = poser.poses(q)
+    for g, p, w in zip(poser.geoms, pos, quat, strict=True):
+        mesh = geom_mesh(m, int(g))
+        assert mesh is not None
+        rgb = style.ARM if max(geom_rgb(m, int(g))) > 128 else style.ARM_DARK  # the dark parts (fingers) stay dark
+        server.scene.add_mesh_simple(f"{root}/{m.geom(int(g)).name or g}", mesh.vertices, mesh.faces, color=rgb,
+                                     position=p, wxyz=w)  # fmt: skip
+
+
+def draw_cells(server: Any, root: str, xs: np.ndarray, ys: np.ndarray, labels: np.ndarray, cell: float,
+               visible: dict[str, bool] | None = None) -> dict[str, Any]:  # fmt: skip
+    """The reach map's cells (labels (ny, nx) over the centres xs, ys) as thin tiles on the
+    table, one mesh per label (`root`/unreachable, npm, pm: every tile of the label, placed;
+    a mesh's one colour shows as given, where instanced colours show paler); `visible`: per
+    node."""
+    tile = box(np.array([style.CELL_FILL * cell / 2] * 2 + [style.CELL_HEIGHT / 2]))
+    out = {}
+    for name, level, rgb in LEVELS:
+        iy, ix = np.nonzero(labels == level)
+        centres = np.stack([xs[ix], ys[iy], np.full(len(iy), style.CELL_HEIGHT / 2)], axis=1).astype(np.float32)
+        mesh = tiles(tile, centres)
+        out[name] = server.scene.add_mesh_simple(
+            f"{root}/{name}",
+            mesh.vertices,
+            mesh.faces,
+            color=rgb,
+            cast_shadow=False,
+            receive_shadow=False,  # thin tiles on the table: their own shadows would speckle them
+            visible=len(centres) > 0 and (visible or {}).get(name, True),
+        )
+    return out
+
+
+def tiles(tile: Mesh, centres: np.ndarray) -> Mesh:
+    """`tile` placed at each of `centres` (n, 3), as one mesh (a tile's vertices, in order,
+    per centre); a degenerate empty mesh where there are none."""
+    if not len(centres):
+        return Mesh(np.zeros((3, 3), np.float32), np.array([[0, 1, 2]], np.uint32))
+    v = (tile.vertices[None] + centres[:, None]).reshape(-1, 3).astype(np.float32)
+    f = (tile.faces[None] + (np.arange(len(centres)) * len(tile.vertices))[:, None, None]).reshape(-1, 3)
+    return Mesh(v, f.astype(np.uint32))
+
+
+def cells_extent(xs: np.ndarray, ys: np.ndarray, cell: float) -> np.ndarray:
+    """(4, 3) the corners of a reach map's grid on the table."""
+    x0, x1, y0, y1 = xs[0] - cell / 2, xs[-1] + cell / 2, ys[0] - cell / 2, ys[-1] + cell / 2
+    return np.array([[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)])
+
+
+def arm_extent(poser: ArmPoser, q: np.ndarray) -> np.ndarray:
+    """(6 n, 3) the extreme points of the arm's drawn geoms' bounding spheres at `q`."""
+    pos, _ = poser.poses(q)
+    r = poser.m.geom_rbound[poser.geoms][:, None, None] * np.concatenate([np.eye(3), -np.eye(3)])[None]
+    return (pos[:, None] + r).reshape(-1, 3)
 
 
 class MapView:
@@ -60,7 +125,15 @@ class MapView:
         self.selected: CellEdges | None = None
         self.cap, self.quantity, self.drawing = settings.cap, settings.quantity, settings.drawing
         self._swept: list[str] = []
-        style.set_camera(server, style.MAP_CAMERA)
+        extent = np.concatenate([cells_extent(data.xs, data.ys, data.cell), arm_extent(self.poser, self.park)])
+        self.camera = style.fit_camera(extent, style.MAP_CAMERA)
+        style.set_camera(server, self.camera)
+        self.page = Page(
+            f"Reach-Ability map {data.path.name}",
+            (f"{data.robot.key}, failure {data.failure.describe()}; {data.ny} x {data.nx} cells of "
+             f"{data.cell * 100:g} cm, {data.n_edges:,} edges", "The edges over the selected cell (red)."),
+            ("pm", "npm", "unreachable", "arm", "selected", "edges", "table"),
+        )  # fmt: skip
         self._draw_table()
         self._draw_arm()
         self._draw_cells(settings.labels, settings.shown)
@@ -78,43 +151,15 @@ class MapView:
         )
 
     def _draw_arm(self) -> None:
-        m = self.poser.m
-        pos, quat = self.poser.poses(self.park)
-        for g, p, w in zip(self.poser.geoms, pos, quat, strict=True):
-            mesh = geom_mesh(m, int(g))
-            assert mesh is not None
-            rgb = style.ARM if geom_rgb(m, int(g))[0] > 128 else geom_rgb(m, int(g))  # the dark fingers stay dark
-            self.server.scene.add_mesh_simple(
-                f"/map/arm/{m.geom(int(g)).name or g}", mesh.vertices, mesh.faces, color=rgb, position=p, wxyz=w
-            )
-
-    def cell_centres(self, labels: np.ndarray, level: int) -> np.ndarray:
-        """(n, 3) centres of the tiles of the cells labelled `level`."""
-        iy, ix = np.nonzero(labels == level)
-        z = np.full(len(iy), style.CELL_HEIGHT / 2)
-        return np.stack([self.data.xs[ix], self.data.ys[iy], z], axis=1).astype(np.float32)
+        draw_arm(self.server, "/map/arm", self.poser, self.park)
 
     def _draw_cells(self, which: str, shown: str) -> None:
         labels = self.data.labels_smooth if which == "smoothed" else self.data.labels
-        half = np.array([style.CELL_FILL * self.data.cell / 2] * 2 + [style.CELL_HEIGHT / 2])
-        tile = box(half)
-        self.cells = {}
-        for name, level, rgb in (("npm", 1, style.NPM), ("pm", 2, style.PM)):
-            centres = self.cell_centres(labels, level)
-            handle = self.server.scene.add_batched_meshes_simple(
-                f"/map/cells/{name}",
-                tile.vertices,
-                tile.faces,
-                batched_wxyzs=np.tile(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (len(centres), 1)),
-                batched_positions=centres,
-                batched_colors=rgb,
-                lod="off",
-                cast_shadow=False,
-                receive_shadow=False,  # thin tiles on the table: their own shadows would speckle them
-                visible=len(centres) > 0 and (name == "pm" or shown == SHOWN[0]),
-            )
+        pm_only = shown != SHOWN[0]
+        visible = {"npm": not pm_only, "unreachable": not pm_only}
+        self.cells = draw_cells(self.server, "/map/cells", self.data.xs, self.data.ys, labels, self.data.cell, visible)
+        for handle in self.cells.values():
             handle.on_click(self._clicked)
-            self.cells[name] = handle
 
     def _clicked(self, event: Any) -> None:
         """A click on a cell: where the ray meets the tiles' top selects the cell there."""
@@ -134,6 +179,7 @@ class MapView:
             f"**{d.path.name}**: {d.robot.key}, failure {d.failure.describe()}  \n"
             f"{d.ny} x {d.nx} cells of {d.cell * 100:g} cm; {d.n_edges:,} edges"
         )
+        add_legend(self.server, self.page)
         with gui.add_folder("Cells"):
             labels = gui.add_dropdown("Labels", LABEL_SETS, initial_value=self.settings.labels)
             shown = gui.add_dropdown("Show", SHOWN, initial_value=self.settings.shown)
@@ -152,7 +198,12 @@ class MapView:
                 self._draw_cells(labels.value, shown.value)
 
         labels.on_update(relabel)
-        shown.on_update(lambda _: setattr(self.cells["npm"], "visible", shown.value == SHOWN[0]))
+
+        def reshow(_: Any) -> None:
+            for name in ("npm", "unreachable"):
+                self.cells[name].visible = shown.value == SHOWN[0]
+
+        shown.on_update(reshow)
         go.on_click(lambda _: self.select(int(self.pick_iy.value), int(self.pick_ix.value)))
 
         def select_busiest(_: Any) -> None:

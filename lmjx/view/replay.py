@@ -1,6 +1,7 @@
 """A trial replayed from its record: the executed edges, again, in the trial's "real" world.
 
-A record keeps which edges a trial executed, not the arm's motion.  Replaying needs no
+A record keeps which edges a trial executed, and its scene (the task: `trial_task`), not the
+arm's motion.  Replaying needs no
 planner's choice and no simulation of candidates: the world is seeded by the trial
 (`SimulatedRealWorld(robot, seed)`: its physics, and the noise of every observation), the
 layout by the trial's seed, and the action for an edge is a function of the observation
@@ -23,8 +24,9 @@ import numpy as np
 from lmjx.errors import ConfigError
 from lmjx.mapfile.read import MapFile
 from lmjx.model.robot import Robot
+from lmjx.sim.scenarios import Task
 from lmjx.types import CONTROL_DT
-from lmjx.view.trialrecord import TrialRecord
+from lmjx.view.trialrecord import TrialRecord, trial_task
 
 FRAME_RATE = 10.0  # frames kept per second of execution
 AGREE_M = 0.00015  # the record's displacements are rounded to 0.1 mm: a replayed action agrees within that
@@ -59,6 +61,8 @@ class Replay:
     frames: np.ndarray  # (T, model.nq) qpos
     times: np.ndarray  # (T,) [s] of execution
     actions: list[ActionMark] = field(default_factory=list)
+    task: Task | None = None  # the task it ran (its scenario: what is on the table)
+    scene_matches: bool = True  # the task's definition has the digest the record gives
 
     @property
     def complete(self) -> bool:
@@ -74,7 +78,7 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
     from lmjx.planner.transit import TransitPlanner, after_executing
     from lmjx.planner.turned import TurnedEdges, turn_axis
     from lmjx.sim.realworld import SimulatedRealWorld
-    from lmjx.sim.scenarios import sample_layout, scenario
+    from lmjx.sim.scenarios import sample_layout
 
     if map_file.edges is None:
         raise ConfigError(f"{map_file.path} has no edges; the trial {record.key} ran on a map with edges")
@@ -87,7 +91,11 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
         if not 0 <= int(s["edge"]) < bundle.n_edges:
             raise ConfigError(f"trial {record.key} executed edge {s['edge']}, which {map_file.path} does not have "
                               f"({bundle.n_edges:,} edges): give the map it ran on with --map")  # fmt: skip
-    sc = scenario(record.scenario, robot.profile.task_scale, record.tasks)
+    task, matches = trial_task(record, robot)
+    if not matches and say is not None:
+        say(f"the scene of trial {record.key} differs from the one its record describes (its digest; another version "
+            "of lmjx, or an edited record): the replay may part from the record")  # fmt: skip
+    sc = task.scenario
     layout = sample_layout(sc, record.seed)
     world = SimulatedRealWorld(robot, record.seed)
     # a GPU run's transits were checked by the batched JAX kernel, a CPU run's by C MuJoCo: the same here
@@ -159,7 +167,8 @@ def replay(robot: Robot, map_file: MapFile, record: TrialRecord, say: Callable[[
         if say is not None:
             say(f"replayed action {k + 1} of {len(record.steps)} (edge {e}, {a.route})")
     world.on_step = None
-    return Replay(record, scene.model, scene.robot_qpos, target_body, np.array(frames), np.array(times), marks)
+    return Replay(record, scene.model, scene.robot_qpos, target_body, np.array(frames), np.array(times), marks, task,
+                  matches)  # fmt: skip
 
 
 def frame_at(text: str, n_frames: int) -> int:

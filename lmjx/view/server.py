@@ -1,6 +1,7 @@
 """The viewer's server (viser: a web server on this machine that any browser opens, the
 3D drawing done in the browser, so no OpenGL is needed here) and its static export: one
-self-contained HTML file with the scene and viser's client inlined, which opens offline.
+self-contained HTML file with the scene and viser's client inlined, which opens offline,
+titled and with its legend.
 
 viser is an optional extra (`pip install -e '.[view]'`): it is imported here, when a view
 starts, and its absence is a one-line error."""
@@ -17,6 +18,7 @@ from typing import Any
 
 from lmjx.errors import ConfigError, LmjxError
 from lmjx.runtime.fileio import atomic_path, check_writable
+from lmjx.view.legend import Page, with_page
 
 INSTALL_HINT = "lmjx view needs viser: pip install -e '.[view]'"
 
@@ -74,11 +76,14 @@ def url_of(server: Any) -> str:
     return f"http://{shown}:{server.get_port()}"
 
 
-def write_html(serializer: Any, out: str | Path) -> int:
+def write_html(serializer: Any, out: str | Path, page: Page | None = None) -> int:
     """The scene a serializer recorded, as one self-contained HTML file (viser's static
     export: the scene zstd-compressed and base64-encoded beside viser's client, both inline),
-    written atomically; returns its size in bytes."""
+    with the page's title and legend (`lmjx.view.legend`), written atomically; returns its
+    size in bytes."""
     html = serializer.as_html()
+    if page is not None:
+        html = with_page(html, page)
     with atomic_path(out) as tmp:
         Path(tmp).write_text(html, encoding="utf-8")
     return len(html.encode("utf-8"))

@@ -1,6 +1,9 @@
-"""MuJoCo geoms as triangle meshes for the viewer: each geom's mesh in its own frame, its
-pose in the world from `mj_kinematics`, and the arm's capsules merged into one mesh at a
-configuration (the swept arm).  Pure numpy and MuJoCo; nothing here draws."""
+"""MuJoCo geoms as triangle meshes for the viewer: each geom's mesh in its own frame (a mesh
+geom's own triangles, `mesh_vert` and `mesh_face`; capsules, boxes and the other primitives
+tessellated), its pose in the world from `mj_kinematics`, which geoms show a body (its mesh
+geoms where it has any: an MJCF's visual meshes; else its capsules and boxes), and the arm
+merged into one mesh at a configuration (the swept arm).  Pure numpy and MuJoCo; nothing
+here draws."""
 
 from __future__ import annotations
 
@@ -51,10 +54,21 @@ def box(half: np.ndarray) -> Mesh:
     return Mesh(corners, np.array(faces, np.uint32))
 
 
+def mesh_asset(m: mujoco.MjModel, mesh_id: int) -> Mesh:
+    """Mesh asset `mesh_id`'s triangles, in the frame MuJoCo compiled it to (a mesh geom's own
+    frame: MuJoCo moves the geom's pose to the mesh's centre and axes)."""
+    v0, nv = int(m.mesh_vertadr[mesh_id]), int(m.mesh_vertnum[mesh_id])
+    f0, nf = int(m.mesh_faceadr[mesh_id]), int(m.mesh_facenum[mesh_id])
+    return Mesh(m.mesh_vert[v0 : v0 + nv].astype(np.float32), m.mesh_face[f0 : f0 + nf].astype(np.uint32))
+
+
 def geom_mesh(m: mujoco.MjModel, g: int) -> Mesh | None:
-    """Geom g's mesh in its own frame: capsules, boxes, planes (a thin box), spheres and
-    cylinders (as round-capped shapes); None for other types (lmjx's models use none)."""
+    """Geom g's mesh in its own frame: a mesh geom's triangles; capsules, boxes, planes (a thin
+    box), spheres and cylinders (as round-capped shapes); None for other types (height fields,
+    ellipsoids: lmjx's models use none)."""
     t, size = int(m.geom_type[g]), m.geom_size[g]
+    if t == mujoco.mjtGeom.mjGEOM_MESH and m.geom_dataid[g] >= 0:
+        return mesh_asset(m, int(m.geom_dataid[g]))
     if t == mujoco.mjtGeom.mjGEOM_CAPSULE:
         return capsule(float(size[0]), float(size[1]))
     if t == mujoco.mjtGeom.mjGEOM_BOX:
@@ -89,16 +103,23 @@ def geom_poses(m: mujoco.MjModel, d: mujoco.MjData, geoms: np.ndarray) -> tuple[
     return d.geom_xpos[geoms].copy(), mat_to_wxyz(d.geom_xmat[geoms])
 
 
+def shown_geoms(m: mujoco.MjModel, geoms: list[int] | np.ndarray | range) -> np.ndarray:
+    """Of `geoms`, the ones drawn: a body's mesh geoms where it has any (an MJCF's visual
+    meshes: what the robot looks like), else its capsules, boxes and other primitives (its
+    collision geometry); never a geom without a shape to draw."""
+    geoms = [int(g) for g in geoms]
+    with_mesh = {int(m.geom_bodyid[g]) for g in geoms if int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_MESH}
+    out = []
+    for g in geoms:
+        is_mesh = int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_MESH
+        if is_mesh == (int(m.geom_bodyid[g]) in with_mesh) and geom_mesh(m, g) is not None:
+            out.append(g)
+    return np.array(out, np.int64)
+
+
 def arm_geoms(m: mujoco.MjModel, robot_bodies: set[str]) -> np.ndarray:
-    """The geoms of the arm (the bodies named `robot_bodies`) that have a shape to draw."""
-    return np.array(
-        [
-            g
-            for g in range(m.ngeom)
-            if m.body(int(m.geom_bodyid[g])).name in robot_bodies and geom_mesh(m, g) is not None
-        ],
-        np.int64,
-    )
+    """The geoms of the arm (the bodies named `robot_bodies`) drawn (`shown_geoms`)."""
+    return shown_geoms(m, [g for g in range(m.ngeom) if m.body(int(m.geom_bodyid[g])).name in robot_bodies])
 
 
 def concatenate(meshes: list[Mesh]) -> Mesh:
@@ -125,7 +146,7 @@ def merged(meshes: list[Mesh], positions: np.ndarray, wxyzs: np.ndarray) -> Mesh
 
 
 class ArmPoser:
-    """The arm's capsules at any configuration: `poses(q)` gives each geom's world pose,
+    """The arm's drawn geoms at any configuration: `poses(q)` gives each geom's world pose,
     `mesh(q)` the whole arm as one mesh (coarse capsules: for many poses at once)."""
 
     def __init__(self, m: mujoco.MjModel, robot_qpos: np.ndarray, geoms: np.ndarray) -> None:

@@ -1,6 +1,7 @@
-"""The trial view: a replayed trial (`lmjx.view.replay`) in its scenario's scene: the table,
-the fixed obstacles, the goal region, the target and the other objects, and the arm, moved
-over time with a time slider and play/pause.  Each action is marked: its transit (the
+"""The trial view: a replayed trial (`lmjx.view.replay`) in its task's scene (`lmjx.view.world`:
+the table, the fixed obstacles, the goal region, the target and the other objects, and the
+arm), moved over time with a time slider and play/pause, seen by a camera that frames the arm
+and the scene over the whole trial (`trial_camera`).  Each action is marked: its transit (the
 interaction point's path, grey), its edge (cyan) and the target's displacement (a red
 arrow), shown once the action has begun.  An HTML export plays the trial back with viser's
 own timeline."""
@@ -15,11 +16,44 @@ import mujoco
 import numpy as np
 
 from lmjx.view import style
+from lmjx.view.legend import Page, add_legend
 from lmjx.view.replay import FRAME_RATE, Replay
-from lmjx.view.shapes import geom_mesh, geom_rgb, mat_to_wxyz
+from lmjx.view.shapes import shown_geoms
+from lmjx.view.world import draw_world, moving_bodies
 
 SPEEDS = ("0.5x", "1x", "2x", "4x")
 ROOT = "/trial"
+CAMERA_FRAMES = 60  # frames of a trial whose arm and objects the camera frames, at most (evenly spaced)
+LEGEND = ("arm", "target", "obstacles", "fixed", "goal", "transit", "edge", "push")
+
+
+def extent_points(m: mujoco.MjModel, frames: np.ndarray, sc, picks: int = CAMERA_FRAMES) -> np.ndarray:
+    """(n, 3) points that bound what a trial shows: each drawn geom of a moving body (the
+    arm, the boxes) at up to `picks` of its `frames` (qpos), as its bounding sphere's extreme
+    points; the goal region's corners and the fixed obstacles' tops."""
+    d = mujoco.MjData(m)
+    moving = set(moving_bodies(m))
+    geoms = np.array([g for g in shown_geoms(m, range(m.ngeom)) if int(m.geom_bodyid[g]) in moving], np.int64)
+    offsets = np.concatenate([np.eye(3), -np.eye(3)])
+    out = []
+    for f in np.unique(np.linspace(0, len(frames) - 1, min(picks, len(frames))).round().astype(int)):
+        d.qpos[:] = frames[f]
+        mujoco.mj_kinematics(m, d)
+        r = m.geom_rbound[geoms][:, None, None] * offsets[None]
+        out.append((d.geom_xpos[geoms][:, None] + r).reshape(-1, 3))
+    gx, gy = sc.goal_center
+    hx, hy = sc.goal_half
+    out.append(np.array([[gx + sx * hx, gy + sy * hy, 0.0] for sx in (-1, 1) for sy in (-1, 1)]))
+    for b in sc.fixed:
+        out.append(np.array([[b.x, b.y, b.zc + b.half[2]], [b.x, b.y, 0.0]]))
+    return np.concatenate(out)
+
+
+def trial_camera(rep: Replay) -> tuple:
+    """The trial's first view: from the robot's front left (`style.TRIAL_CAMERA`'s direction),
+    framing the arm and the objects over the whole trial, the goal and the fixed obstacles."""
+    assert rep.task is not None
+    return style.fit_camera(extent_points(rep.model, rep.frames, rep.task.scenario), style.TRIAL_CAMERA)
 
 
 def _cm(v: float | None) -> str:
@@ -44,9 +78,11 @@ class TrialView:
         self.position = float(at)  # the frame shown, fractional while playing
         self.last_tick = time.monotonic()
         self.slider = None
-        style.set_camera(server, style.TRIAL_CAMERA)
+        self.camera = trial_camera(rep)
+        style.set_camera(server, self.camera)
         self._draw_static()
         self._draw_marks()
+        self.page = self._page()
         if gui:
             self._gui()
         self.show(at)
@@ -55,34 +91,13 @@ class TrialView:
     def n_frames(self) -> int:
         return len(self.rep.frames)
 
-    def _moving_bodies(self) -> list[int]:
-        m = self.rep.model
-        return [b for b in range(1, m.nbody) if m.body_weldid[b] != 0 or m.body_jntnum[b] > 0]
-
     def _draw_static(self) -> None:
-        m, scene = self.rep.model, self.server.scene
-        self.bodies = self._moving_bodies()
-        moving = set(self.bodies)
+        assert self.rep.task is not None
         self.d.qpos[:] = self.rep.frames[0]
-        mujoco.mj_kinematics(m, self.d)
-        self.frames = {b: scene.add_frame(f"{ROOT}/bodies/{m.body(b).name}", show_axes=False) for b in self.bodies}
-        for g in range(m.ngeom):
-            mesh = geom_mesh(m, g)
-            if mesh is None:
-                continue
-            b = int(m.geom_bodyid[g])
-            name = m.geom(g).name or f"geom{g}"
-            rgb = style.TABLE if name == "table" else geom_rgb(m, g)
-            if b in moving:  # placed in its body's frame, which moves
-                scene.add_mesh_simple(
-                    f"{ROOT}/bodies/{m.body(b).name}/{name}", mesh.vertices, mesh.faces, color=rgb,
-                    position=m.geom_pos[g], wxyz=m.geom_quat[g],
-                )  # fmt: skip
-            else:
-                scene.add_mesh_simple(
-                    f"{ROOT}/static/{name}", mesh.vertices, mesh.faces, color=rgb, position=self.d.geom_xpos[g],
-                    wxyz=mat_to_wxyz(self.d.geom_xmat[g]),
-                )  # fmt: skip
+        mujoco.mj_kinematics(self.rep.model, self.d)
+        drawn = draw_world(self.server, ROOT, self.rep.model, self.d, self.rep.task.scenario)
+        self.frames = drawn.frames
+        self.parts = drawn.parts
 
     def _draw_marks(self) -> None:
         scene = self.server.scene
@@ -104,9 +119,9 @@ class TrialView:
             nodes.append(scene.add_label(f"{base}/label", f"{a.index + 1}", position=a.target_before + 2 * lift))
             self.marks.append((a, nodes))
 
-    def _gui(self) -> None:
-        gui, rep = self.server.gui, self.rep
-        r = rep.record
+    def _check(self) -> str:
+        """Whether the replay agrees with the record, in words."""
+        rep = self.rep
         bad = rep.first_disagreement()
         check = (
             "The replay agrees with the record (the target's displacement after each action)."
@@ -117,7 +132,24 @@ class TrialView:
         )
         if not rep.complete:
             check += f" The replay stops at action {len(rep.actions) + 1}: no transit to its edge from where it stands."
-        gui.add_markdown(f"**Trial {r.title()}**  \n{r.source}  \n{check}")
+        if not rep.scene_matches:
+            check += " Its scene differs from the one the record describes (another lmjx, or an edited record)."
+        return check
+
+    def _page(self) -> Page:
+        r, task = self.rep.record, self.rep.task
+        assert task is not None
+        scene = f"scene {task.name}" + (f" ({task.scenario.title})" if task.scenario.title != task.name else "")
+        lines = (f"{r.title()}", f"{scene}, robot {r.robot}, failure {r.failure}, ASM {r.asm}, seed {r.seed}",
+                 self._check())  # fmt: skip
+        keys = tuple(k for k in LEGEND if k in self.parts or k in ("transit", "edge", "push"))
+        return Page(f"Trial {r.key}", lines, keys)
+
+    def _gui(self) -> None:
+        gui, rep = self.server.gui, self.rep
+        r = rep.record
+        gui.add_markdown(f"**Trial {r.title()}**  \n{r.source}  \n{self._check()}")
+        add_legend(self.server, self.page)
         self.slider = gui.add_slider(
             "Time (s)", min=0.0, max=max(float(rep.times[-1]), 0.1), step=1.0 / FRAME_RATE, initial_value=0.0
         )

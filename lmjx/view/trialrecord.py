@@ -1,16 +1,24 @@
 """Trials as their records tell them: a `lmjx plan --json` output, or one trial of an
-evaluation's results.json (`--trial failure/scenario/asm/seed`), read and checked; and
-which map a trial ran on (the records do not name it: --map, else where lmjx build-map
-writes the failure's map).  Every mistake is a one-line `ConfigError`."""
+evaluation's results.json (`--trial failure/scenario/asm/seed`; the file as `lmjx evaluate`
+writes it, `lmjx.evaluation.results`: an object whose `trials` lists the records, or a bare
+list of records), read and checked; the task a trial ran (`trial_task`: the record's `scene`,
+`lmjx.sim.scenefile.record_task`, a shipped scenario or a scene file's text; the scenario's
+number for a record without one); and which map a trial ran on (the records do not name it:
+--map, else where lmjx build-map writes the failure's map).  Every mistake is a one-line
+`ConfigError` (a scene that cannot be read, a `SceneError`)."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lmjx.errors import ConfigError
+
+if TYPE_CHECKING:
+    from lmjx.model.robot import Robot
+    from lmjx.sim.scenarios import Task
 
 
 @dataclass(frozen=True)
@@ -30,6 +38,7 @@ class TrialRecord:
     end: str = ""
     final_distance_m: float | None = None
     source: str = ""  # where it was read
+    scene: dict | None = field(default=None, compare=False)  # the record's scene (`scene_record`); None: not kept
     extra: dict = field(default_factory=dict, compare=False)
 
     @property
@@ -59,12 +68,13 @@ def from_dict(r: dict, source: str) -> TrialRecord:
             end=str(r.get("end", "")),
             final_distance_m=r.get("final_distance_m"),
             source=source,
+            scene=r["scene"] if isinstance(r.get("scene"), dict) else None,
         )
     except KeyError as e:
         if e.args and e.args[0] == "steps":
             raise ConfigError(
-                f"{source} does not list the trial's actions (a record of an older lmjx); run the trial again with "
-                "lmjx plan --json or lmjx evaluate"
+                f"{source} does not list the trial's actions (lmjx plan --json and lmjx evaluate record them); run the "
+                "trial again with either"
             ) from None
         raise ConfigError(f"{source} is not a trial record: it lacks '{e.args[0]}'") from None
     except (TypeError, ValueError) as e:
@@ -91,12 +101,31 @@ def parse_trial_key(text: str) -> tuple[str, int, str, int]:
         raise ConfigError(f"--trial {text!r}: give failure/scenario/asm/seed, e.g. case2/1/greedy/1000") from None
 
 
+def is_results(data: Any) -> bool:
+    """Whether JSON `data` is an evaluation's results (`lmjx.evaluation.results`: the object
+    `lmjx evaluate` writes, or a bare list of trial records)."""
+    from lmjx.evaluation.results import FORMAT
+
+    return isinstance(data, list) or (isinstance(data, dict) and data.get("format") == FORMAT)
+
+
+def records_of(data: Any, path: Path) -> list[dict]:
+    """The trial records of an evaluation's results (`is_results`), checked."""
+    from lmjx.evaluation.results import FORMAT, FORMAT_VERSION
+
+    if isinstance(data, dict) and data.get("format") == FORMAT:
+        if data.get("format_version") != FORMAT_VERSION:
+            raise ConfigError(f"{path} is a results file of format {data.get('format_version')!r}; this lmjx reads "
+                              f"format {FORMAT_VERSION}: view it with the lmjx that wrote it")  # fmt: skip
+        data = data.get("trials")
+    if not isinstance(data, list) or not all(isinstance(r, dict) for r in data):
+        raise ConfigError(f"{path} is not an evaluation's results.json (lmjx evaluate --out writes one)")
+    return data
+
+
 def results_records(path: Path) -> list[dict]:
     """The trial records of an evaluation's results.json."""
-    data = read_json(path)
-    if not isinstance(data, list) or not all(isinstance(r, dict) for r in data):
-        raise ConfigError(f"{path} is not an evaluation's results.json (a list of trial records)")
-    return data
+    return records_of(read_json(path), path)
 
 
 def pick_trial(records: list[dict], key: str, source: Path) -> TrialRecord:
@@ -114,10 +143,12 @@ def pick_trial(records: list[dict], key: str, source: Path) -> TrialRecord:
 def read_trial(path: Path, trial: str | None) -> TrialRecord:
     """A plan's JSON (`trial` None) or the trial `trial` of a results.json."""
     data = read_json(path)
-    if isinstance(data, list):
+    if is_results(data):
+        records = records_of(data, path)
         if trial is None:
-            raise ConfigError(f"{path} holds an evaluation's {len(data)} trials; choose one with --trial F/S/ASM/SEED")
-        return pick_trial(results_records(path), trial, path)
+            raise ConfigError(f"{path} holds an evaluation's {len(records)} trials; choose one with --trial "
+                              "F/S/ASM/SEED")  # fmt: skip
+        return pick_trial(records, trial, path)
     if not isinstance(data, dict):
         raise ConfigError(f"{path} is neither a trial record (lmjx plan --json) nor an evaluation's results.json")
     if trial is not None:
@@ -150,3 +181,21 @@ def map_for(record: TrialRecord, maps: list[str] | None) -> Path:
             f"trial {record.key} ran on a map of failure {record.failure}; none at {path}: give it with --map PATH"
         )
     return path
+
+
+def trial_task(record: TrialRecord, robot: Robot) -> tuple[Task, bool]:
+    """The task trial `record` ran, placed for `robot`, and whether it is the task the record
+    describes: from the record's scene (`record_task`: False where its definition's digest
+    differs from the record's), else, for a record that keeps no scene, the shipped scenario
+    of its number and task set (True)."""
+    from lmjx.sim.scenarios import SCENARIOS, TASK_SETS, resolve_task
+    from lmjx.sim.scenefile import record_task
+
+    if record.scene is not None:
+        return record_task(record.scene, robot, record.source)
+    if record.scenario not in SCENARIOS or record.tasks not in TASK_SETS:
+        raise ConfigError(
+            f"{record.source} keeps no scene and names scenario {record.scenario} of the task set {record.tasks!r}, "
+            "which lmjx does not ship; plan the trial again with lmjx plan --json or lmjx evaluate"
+        )
+    return resolve_task(record.scenario, robot, record.tasks), True
