@@ -16,14 +16,20 @@ default; 'ur5e'), an MJCF's path or a Robot will do; wherever it takes a failure
   load_scene(path, robot)           a scene file (docs/SCENES.md), checked, as a Task; shipped_scene(n, tasks)
 
 For a planner of one's own (docs/API.md):
-  MapFile.edges_over(region), MapFile.edge(i) -> Edge    the edges acting over a region; one edge's states
-  trajectory(edge, dt) -> Trajectory                     its joint trajectory, resampled; .write(csv or json)
+  MapFile.edges_over(region, turned) -> ids (, turns)    the edges acting over a region, and with turned their
+                                                         copies turned about the arm's base joint (the planner's)
+  MapFile.edge(i, turn) -> Edge                          one edge's states, turned by `turn` [rad] or not
   transit(robot, scene, q_from, edge) -> Transit         the collision-checked transit to an edge, or why none
+  trajectory(transit or edge, dt) -> Trajectory          a whole action from rest to rest (or an edge alone):
+                                                         positions, velocities, accelerations; .write(csv, json)
   simulate(scene, state, actions)                        where each object ends, batched (CPU or GPU)
   park_pose(map_file)                                    where a trial's arm starts
   Executor, SimulatedRealWorld                           where actions run: a real robot's interface and
                                                          its simulated reference implementation
-  Action, Observation                                    what an executor takes and reports
+  Action, Observation, Layout                            what an executor takes and reports; a trial's
+                                                         initial poses (Task.layout(seed), or your own)
+  Poses are position then quaternion (w, x, y, z), MuJoCo's order; order="xyzw" where the API
+  takes or gives them (transit, simulate) uses ROS's (x, y, z, w).
   use_device('cpu' | 'gpu')         where JAX runs (`--device`), before the first computation
   LmjxError                         base class of errors caused by user input
 
@@ -69,11 +75,12 @@ _EXPORTS = {
     "plan_task": "api",
     "use_device": "api",
     "Task": "sim.scenarios",
+    "Layout": "sim.scenarios",
     "load_scene": "sim.scenefile",
     "shipped_scene": "sim.scenefile",
     "Edge": "mapfile.trajectory",
     "Trajectory": "mapfile.trajectory",
-    "trajectory": "mapfile.trajectory",
+    "trajectory": "toolkit",
     "Transit": "toolkit",
     "transit": "toolkit",
     "simulate": "toolkit",

@@ -60,17 +60,18 @@ REPLAY = r"""
 import csv, json, sys
 import h5py, mujoco, numpy as np
 
-mjcf, map_path, csv_path, json_path, edge = sys.argv[1:6]
+mjcf, map_path, csv_path, json_path, edge, point = sys.argv[1:7]
 edge = int(edge)
 with open(csv_path) as f:
     rows = list(csv.reader(f))
 names = rows[0][1:]
-nj = len(names) // 2
+nj = len(names) // 3
 table = np.array(rows[1:], dtype=float)
-t, q, qd = table[:, 0], table[:, 1 : 1 + nj], table[:, 1 + nj :]
+t, q, qd = table[:, 0], table[:, 1 : 1 + nj], table[:, 1 + nj : 1 + 2 * nj]
 msg = json.load(open(json_path))
-assert msg["joint_names"] == names[:nj] and [n + "_velocity" for n in names[:nj]] == names[nj:]
-assert np.array_equal([p["time_from_start"] for p in msg["points"]], t)
+assert msg["joint_names"] == names[:nj] and [n + "_velocity" for n in names[:nj]] == names[nj : 2 * nj]
+stamps = [p["time_from_start"]["sec"] + p["time_from_start"]["nanosec"] * 1e-9 for p in msg["points"]]
+assert np.abs(np.array(stamps) - t).max() <= 1e-9
 assert np.array_equal([p["positions"] for p in msg["points"]], q)
 assert np.array_equal([p["velocities"] for p in msg["points"]], qd)
 m = mujoco.MjModel.from_xml_path(mjcf)
@@ -79,7 +80,7 @@ with h5py.File(map_path, "r") as f:  # the map's stored states, as maps/README.m
     g = f["edges"]
     o, n = int(g["offset"][edge]), int(g["length"][edge])
     stored_q, stored_p, dt = g["q"][o : o + n], g["p"][o : o + n], float(g.attrs["dt"])
-site = m.site("ip_" + msg["interaction_point"]).id
+site = m.site("ip_" + point).id
 # replay: integrate each point's velocities over its interval with MuJoCo, from the first point
 qpos = np.zeros(m.nq)
 qpos[adr] = q[0]
@@ -114,6 +115,7 @@ def test_an_exported_trajectory_replays_in_c_mujoco_to_the_stored_states(plan_ma
     with lmjx.load_map(plan_map) as m:
         ids = m.edges_over((0.36, 0.38, 0.44, 0.46))
         picked = [int(ids[0]), int(ids[len(ids) // 2]), int(ids[-1])]
+        m_points = {i: m.edge(i).point for i in picked}
         for i in picked:
             e = m.edge(i)
             traj = lmjx.trajectory(e, 0.005)
@@ -124,7 +126,7 @@ def test_an_exported_trajectory_replays_in_c_mujoco_to_the_stored_states(plan_ma
         mjcf = str(m.robot.path)
     for i in picked:
         run = subprocess.run([sys.executable, "-c", REPLAY, mjcf, str(plan_map), str(tmp_path / f"{i}.csv"),
-                              str(tmp_path / f"{i}.json"), str(i)], capture_output=True, text=True,
+                              str(tmp_path / f"{i}.json"), str(i), m_points[i]], capture_output=True, text=True,
                              timeout=120)  # fmt: skip
         assert run.returncode == 0, run.stderr[-2000:]
         out = json.loads(run.stdout)
@@ -188,6 +190,22 @@ def test_the_example_pushes_with_its_own_rule(api_dir: Path) -> None:
         sys.path.pop(0)
     r = example.run("maps/case2.h5", "examples/my_bench.toml", seed=0, simulate=2, actions=1, export="out")
     assert len(r["edges"]) == 1 and r["end"] in ("goal", "budget"), r
-    exported = list((api_dir / "out").glob("*.csv"))
-    assert len(exported) == 1 and f"edge{r['edges'][0]}" in exported[0].name
+    exported = list((api_dir / "out").glob("*.json"))
+    edge, turn = r["edges"][0]
+    assert len(exported) == 1 and f"edge{edge}_turn{round(np.degrees(turn))}" in exported[0].name
+    points = json.loads(exported[0].read_text())["points"]
+    assert not any(points[0]["velocities"]) and not any(points[-1]["velocities"])  # from rest to rest
     assert example.main(["maps/case2.h5", "examples/nothing.toml", "--actions", "1"]) == 2
+
+
+def test_the_example_reaches_the_goal_with_turned_edges(api_dir: Path) -> None:
+    """On the paper's scenario 3 (seed 0), the example's rule pushes the target into the goal
+    with a turned copy of an edge (on this map, in one action: about 10 s on 2 CPU cores)."""
+    sys.path.insert(0, str(api_dir / "examples"))
+    try:
+        import push_with_my_rule as example
+    finally:
+        sys.path.pop(0)
+    r = example.run("maps/case2.h5", "3", seed=0, simulate=4, actions=3)
+    assert r["success"] and r["end"] == "goal", r
+    assert any(turn != 0.0 for _, turn in r["edges"]), r

@@ -13,7 +13,7 @@ import h5py
 import numpy as np
 
 from lmjx import __version__
-from lmjx.errors import MapFileError
+from lmjx.errors import ConfigError, MapFileError
 from lmjx.mapfile.bundle import Bundle, BundleConfig
 from lmjx.mapfile.h5 import h5open
 from lmjx.mapfile.lazystates import StateReader, damaged
@@ -26,6 +26,7 @@ from lmjx.reach.reachability import ReachConfig, ReachResult
 
 if TYPE_CHECKING:
     from lmjx.mapfile.trajectory import Edge
+    from lmjx.mapfile.turned import TurnAxis
 
 LAZY_BYTES = 512 * 2**20  # edge states larger than this are read on demand (load_map's default)
 CACHE_BYTES = 256 * 2**20  # HDF5 chunk cache per state dataset of a lazily opened map
@@ -45,6 +46,7 @@ class MapFile:
     lazy: bool = False
     file: h5py.File | None = dataclasses.field(default=None, repr=False)
     robot: Robot | None = dataclasses.field(default=None, repr=False)  # the robot it was built for
+    _axis: tuple[TurnAxis | None] | None = dataclasses.field(default=None, init=False, repr=False)  # `turn_axis`'s
 
     def __repr__(self) -> str:
         parts = [f"{self.robot.key if self.robot else '?'}", f"failure {self.failure.spec!r}"]
@@ -64,21 +66,56 @@ class MapFile:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def edges_over(self, region: tuple[float, float, float, float]) -> np.ndarray:
+    def edges_over(
+        self, region: tuple[float, float, float, float], turned: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Ids (sorted) of the edges during which the whole arm can act on an object in the
         axis-aligned rectangle `region` = (xmin, ymin, xmax, ymax) [m] of the table top (robot
-        base frame): the spatial index's edges of every reach cell whose square overlaps it."""
-        from lmjx.mapfile.trajectory import edges_in_region
+        base frame): the spatial index's edges of every reach cell whose square overlaps it.
 
-        return edges_in_region(self._bundle(), self.reach, region)
+        `turned`: also the copies of the map's edges turned about the arm's free base joint
+        that lmjx's planner offers for an object at the region's centre whose square, grown by
+        its margin, is the region: (ids (K,), turns (K,) [rad of the base joint]), the map's
+        own edges first (turn 0, sorted), then the copies (sorted by edge, then turn; whole
+        degrees, at most 4 turns an edge, each within the joint's limits over the whole edge,
+        none starting with its interaction point within 8 cm of the centre).  Pass an id and
+        its turn on to `edge(i, turn=...)`.  No copies where the arm's base joint is locked
+        or its axis is not vertical."""
+        from lmjx.mapfile.trajectory import edges_in_region, turned_in_region
 
-    def edge(self, index: int) -> Edge:
+        if not isinstance(turned, bool | np.bool_):
+            raise ConfigError(f"edges_over: turned is True or False, got {turned!r}")
+        if not turned:
+            return edges_in_region(self._bundle(), self.reach, region)
+        assert self.robot is not None
+        return turned_in_region(self._bundle(), self.reach, self.robot, self.failure, region)
+
+    def edge(self, index: int, turn: float = 0.0) -> Edge:
         """Edge `index`: its joint states q, qd (T, nq), time stamps t (T,) and the interaction
-        point's path p (T, 3) (`lmjx.mapfile.trajectory.Edge`)."""
+        point's path p (T, 3) (`lmjx.mapfile.trajectory.Edge`), turned about the arm's base
+        joint by `turn` [rad] (as `edges_over(region, turned=True)` gives them; 0: as stored):
+        that joint `turn` more in every state, qd unchanged, the point's path turned about
+        the joint's axis, the states lmjx's planner executes for that turn.  A turn that takes
+        the joint past its limits anywhere along the edge is refused (ConfigError)."""
         from lmjx.mapfile.trajectory import read_edge
 
         assert self.robot is not None
-        return read_edge(self._bundle(), index, self.robot.joint_names, self.robot.site_names, self)
+        bundle = self._bundle()
+        axis, limits = None, (-np.inf, np.inf)
+        if turn is not None and not isinstance(turn, bool) and isinstance(turn, int | float | np.number) and turn != 0:
+            axis = self.turn_axis()
+            if axis is not None:
+                limits = (float(self.robot.lower[axis.joint]), float(self.robot.upper[axis.joint]))
+        return read_edge(bundle, index, self.robot.joint_names, self.robot.site_names, self, turn, axis, limits)
+
+    def turn_axis(self) -> TurnAxis | None:
+        """The arm's base joint edges turn about (`lmjx.mapfile.turned.turn_axis`), or None."""
+        from lmjx.mapfile.turned import turn_axis
+
+        assert self.robot is not None
+        if self._axis is None:
+            self._axis = (turn_axis(self.robot, self.failure),)
+        return self._axis[0]
 
     def _bundle(self) -> Bundle:
         if self.edges is None or self.reach is None:

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lmjx.errors import ConfigError
+from lmjx.errors import ConfigError, SceneError
 
 if TYPE_CHECKING:
     from lmjx.model.robot import Robot
@@ -100,11 +100,30 @@ class Scenario:
 
 @dataclass
 class Layout:
-    """Initial poses of a scenario's movable objects for one trial (target first)."""
+    """Initial poses of a scenario's movable objects for one trial (target first), what
+    `Executor.reset` sets up: `Task.layout(seed)` draws them, and `Layout(task.scenario, seed,
+    poses)` gives poses of one's own ((n, 3) x, y [m] on the table, yaw [rad], the objects in
+    the order of `scenario.movable`); poses of another shape are a one-line SceneError."""
 
     scenario: Scenario
     seed: int
     poses: np.ndarray = field(repr=False)  # (n, 3) x, y, yaw
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scenario, Scenario):
+            raise SceneError(f"Layout: scenario is a task's (task.scenario), got {type(self.scenario).__name__}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
+            raise SceneError(f"Layout: seed is a whole number, got {self.seed!r}")
+        names = ", ".join(b.name for b in self.scenario.movable)
+        try:
+            poses = np.asarray(self.poses, np.float64)
+        except (TypeError, ValueError):
+            poses = np.zeros(0)
+        if poses.shape != (len(self.scenario.movable), 3) or not np.isfinite(poses).all():
+            got = getattr(self.poses, "shape", type(self.poses).__name__)
+            n = len(self.scenario.movable)
+            raise SceneError(f"Layout: poses are ({n}, 3) finite x, y, yaw of {names}, got {got}")
+        self.poses = poses
 
 
 def _target(x: float, y: float) -> Box:
