@@ -54,7 +54,9 @@ class Action:
 @dataclass
 class Observation:
     """What an executor reports after a reset or an action: the arm's measured joint angles,
-    the objects' estimated poses (the target first) and the execution time so far."""
+    the objects' estimated poses (the target first) and the execution time so far.  A pose is
+    a position [m] then a unit quaternion (w, x, y, z), MuJoCo's order (`lmjx.transit` and
+    `lmjx.simulate` take and give (x, y, z, w) with order="xyzw")."""
 
     robot_q: np.ndarray  # (nq,) measured joint angles
     objects: np.ndarray  # (n, 7) estimated object poses (position, quaternion)
