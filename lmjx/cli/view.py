@@ -207,10 +207,11 @@ def _scene(args: argparse.Namespace, path: Path) -> dict[str, Any]:
 def _replayed(args: argparse.Namespace, record: Any) -> Any:
     from lmjx.mapfile.read import load_map
     from lmjx.view.replay import replay
-    from lmjx.view.trialrecord import map_for
+    from lmjx.view.trialrecord import map_for, trial_task
 
     m = load_map(map_for(record, args.map), _robot(args), lazy=True)
     assert m.robot is not None
+    trial_task(record, m.robot)  # a record whose scene cannot be rebuilt: its one line, before any other
     _say(f"replaying trial {record.key} on {m.path}")
     rep = replay(m.robot, m, record, say=_say)
     bad = rep.first_disagreement()
