@@ -408,14 +408,14 @@ def test_step_record_says_candidates_include_turned_copies() -> None:
     the same output."""
     from lmjx.planner.records import StepRecord
 
-    step = StepRecord(1094, 4833, 17, None, 0.033, 4.5, 4.1, target_moved_m=0.09, turn_deg=126)
+    step = StepRecord(1095, 4833, 17, None, 0.033, 4.5, 4.1, target_moved_m=0.09, turn_deg=126)
     text = repr(step)
-    assert text.startswith("StepRecord(edge 1094 (turned 126 deg) of 4,833 candidates (the map's edges over the "
+    assert text.startswith("StepRecord(edge 1095 (turned 126 deg) of 4,833 candidates (the map's edges over the "
                            "target and any turned copies of its edges), 17 simulated;"), text  # fmt: skip
     assert "no action among 5 candidates" in repr(StepRecord(-1, 5, 0, None, 0.2, 0.1, 0.0))
     details = " ".join(page("docs/DETAILS.md").split())
     assert text.split(";")[0] in details  # the line DETAILS shows
-    assert "4,833 candidates on the 2,484-edge map" in details
+    assert "4,833 candidates on the 2,485-edge map" in details
 
 
 def test_write_reach_map_refuses_an_existing_file(plan_map: Path, tmp_path: Path) -> None:

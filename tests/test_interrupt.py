@@ -24,7 +24,11 @@ print("finished", flush=True)
 def test_ctrl_c_while_the_api_compiles_ends_with_keyboard_interrupt(tmp_path):
     ends = []
     for delay in (1.0, 3.0):  # (while tracing and lowering; while XLA compiles)
-        env = dict(os.environ, LMJX_CACHE_DIR=str(tmp_path / f"cache{delay}"), PYTHONFAULTHANDLER="1")
+        # an empty compile cache of its own (not the run's, where these programs may be kept):
+        # the reach map compiles for seconds, so the interrupt lands in its work
+        cache = tmp_path / f"cache{delay}"
+        env = dict(os.environ, LMJX_CACHE_DIR=str(cache), JAX_COMPILATION_CACHE_DIR=str(cache / "jax"),
+                   PYTHONFAULTHANDLER="1")  # fmt: skip
         p = subprocess.Popen([sys.executable, "-c", PROGRAM], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              env=env)  # fmt: skip
         assert p.stdout is not None and p.stdout.readline().strip() == "computing"

@@ -73,7 +73,9 @@ def _circle3(p: np.ndarray, q: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, f
 
 def enclosing_circle(points: np.ndarray, seed: int = 0) -> tuple[np.ndarray, float]:
     """The smallest circle enclosing 2-D points (n, 2): (centre, radius).  Welzl's algorithm
-    (iterative, on the points' convex hull, in a seeded random order)."""
+    (iterative, on the points' convex hull, in a seeded random order).  Each loop jumps to its
+    next point outside the circle (`_next_outside`, one array operation over the rest): the
+    points it passes are inside, as the point-by-point loop would find them one at a time."""
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) > 3:
         with contextlib.suppress(QhullError):  # degenerate (collinear) input: keep all points
@@ -81,20 +83,32 @@ def enclosing_circle(points: np.ndarray, seed: int = 0) -> tuple[np.ndarray, flo
     pts = pts[np.random.default_rng(seed).permutation(len(pts))]
     if len(pts) == 1:
         return pts[0].copy(), 0.0
-    eps = 1e-12
     c, r = _circle2(pts[0], pts[1])
-    for i in range(2, len(pts)):
-        if np.linalg.norm(pts[i] - c) <= r + eps:
-            continue
+    i = _next_outside(pts, c, r, 2, len(pts))
+    while i < len(pts):
         c, r = pts[i].copy(), 0.0
-        for j in range(i):
-            if np.linalg.norm(pts[j] - c) <= r + eps:
-                continue
+        j = _next_outside(pts, c, r, 0, i)
+        while j < i:
             c, r = _circle2(pts[i], pts[j])
-            for k in range(j):
-                if np.linalg.norm(pts[k] - c) > r + eps:
-                    c, r = _circle3(pts[i], pts[j], pts[k])
+            k = _next_outside(pts, c, r, 0, j)
+            while k < j:
+                c, r = _circle3(pts[i], pts[j], pts[k])
+                k = _next_outside(pts, c, r, k + 1, j)
+            j = _next_outside(pts, c, r, j + 1, i)
+        i = _next_outside(pts, c, r, i + 1, len(pts))
     return c, r
+
+
+WELZL_EPS = 1e-12  # a point this far outside the circle counts as on it
+
+
+def _next_outside(pts: np.ndarray, c: np.ndarray, r: float, lo: int, hi: int) -> int:
+    """The first index in [lo, hi) of a point outside the circle (c, r), else hi."""
+    if lo >= hi:
+        return hi
+    d = pts[lo:hi] - c
+    out = np.flatnonzero(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) > r + WELZL_EPS)
+    return lo + int(out[0]) if len(out) else hi
 
 
 def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
