@@ -247,21 +247,53 @@ def ik_batch(robot, failure, settings=None, chunk: int | None = None):
     return IKBatch(robot, failure, sites, settings or config.ik_settings(), chunk or default_chunk())
 
 
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    """Within: this process alone holds the lock file `path` (POSIX flock)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, file: str, build: Callable[[Path], None]) -> Path:
+    """The file `file` that `build(path)` makes, made once for the whole run: under pytest-xdist
+    the first worker to ask builds it in a folder the run's workers share (the run's base
+    temp folder, removed with it) while the others wait, then every worker reads the same
+    file (the fixtures' maps are read, never written); alone, in a folder of its own."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        path = tmp_path_factory.mktemp(name) / file
+        build(path)
+        return path
+    folder = tmp_path_factory.getbasetemp().parent / "shared" / name
+    folder.mkdir(parents=True, exist_ok=True)
+    with _file_lock(folder.parent / f"{name}.lock"):
+        if not (folder / ".built").exists():
+            build(folder / file)
+            (folder / ".built").touch()
+    return folder / file
+
+
 @pytest.fixture(scope="session")
 def tiny_map(tmp_path_factory) -> Path:
-    """The four-joint test arm's map (TINY_MAP), built by `lmjx build-map` in this process."""
-    path = tmp_path_factory.mktemp("tiny_map") / "tiny.h5"
-    cli("build-map", *TINY_MAP, "--out", path).ok()
-    return path
+    """The four-joint test arm's map (TINY_MAP), built by `lmjx build-map` once for the run."""
+    return built_once(tmp_path_factory, "tiny_map", "tiny.h5", lambda p: cli("build-map", *TINY_MAP, "--out", p).ok())
 
 
 @pytest.fixture(scope="session")
 def small_map(tmp_path_factory) -> Path:
-    """The shared case-2 map (SMALL_MAP), built by `lmjx build-map` in this process with
-    its threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
-    path = tmp_path_factory.mktemp("small_map") / "case2.h5"
-    cli("build-map", *SMALL_MAP, "--out", path, env={"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}).ok()
-    return path
+    """The shared case-2 map (SMALL_MAP), built by `lmjx build-map` once for the run with its
+    threads sampled (LMJX_THREAD_PROFILE: threads.json beside it)."""
+
+    def build(path: Path) -> None:
+        profile = {"LMJX_THREAD_PROFILE": str(path.with_name("threads.json"))}
+        cli("build-map", *SMALL_MAP, "--out", path, env=profile).ok()
+
+    return built_once(tmp_path_factory, "small_map", "case2.h5", build)
 
 
 @pytest.fixture(scope="session")
@@ -299,13 +331,15 @@ def _shared_reach(maps: Maps, spec: str) -> Iterator[list[bool]]:
 
 @pytest.fixture(scope="session")
 def plan_map(tmp_path_factory, table1: Maps) -> Path:
-    """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` in this process on
+    """The planner tests' case-2 map (PLAN_MAP), built by `lmjx build-map` once for the run on
     the Panda's default case-2 reach map of `table1` (the same map: computed once)."""
-    path = tmp_path_factory.mktemp("plan_map") / "case2.h5"
-    with _shared_reach(table1, "case2") as used:
-        cli("build-map", *PLAN_MAP, "--out", path).ok()
-    assert used, "PLAN_MAP's reach map is no longer table1's case2 map"
-    return path
+
+    def build(path: Path) -> None:
+        with _shared_reach(table1, "case2") as used:
+            cli("build-map", *PLAN_MAP, "--out", path).ok()
+        assert used, "PLAN_MAP's reach map is no longer table1's case2 map"
+
+    return built_once(tmp_path_factory, "plan_map", "case2.h5", build)
 
 
 def _programs_ahead() -> list[Callable[[], None]]:
@@ -361,8 +395,16 @@ def _compile_ahead(request: pytest.FixtureRequest):
         yield
         return
 
+    # under pytest-xdist each worker compiles its share of the list first (worker k of n: every
+    # n-th program from the k-th), then the rest, which the other workers have compiled into the
+    # run's compile cache meanwhile or are compiling (lmjx.runtime.compilelock: then it waits
+    # for theirs and loads it): each program is compiled once for the run
+    k = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+    n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+
     def run() -> None:
-        for compile_one in _programs_ahead():
+        programs = _programs_ahead()
+        for compile_one in programs[k % n :: n] + [p for i, p in enumerate(programs) if i % n != k % n]:
             with contextlib.suppress(Exception):  # the test that needs the program meets the error itself
                 compile_one()
 
@@ -370,6 +412,20 @@ def _compile_ahead(request: pytest.FixtureRequest):
     thread.start()
     yield
     thread.join()
+
+
+# ------------------------------------------------------------------------------ the longest files first
+
+# the files that take longest (a cold compile cache, two workers: `make test`), started first so
+# that pytest-xdist's workers (a file each, `--dist loadfile`) do not end with one of them alone
+LONGEST_FIRST = ("test_planning.py", "test_robot_import.py", "test_planning_quality.py", "test_bench_ik.py",
+                 "test_cli.py", "test_scenes.py", "test_docs.py", "test_reach.py", "test_edgestream.py")  # fmt: skip
+
+
+def pytest_collection_modifyitems(config, items):
+    """The test files in LONGEST_FIRST order, then the others as collected."""
+    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 # ------------------------------------------------------------------------------ what was skipped

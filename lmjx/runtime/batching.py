@@ -302,16 +302,21 @@ class ChunkedKernel:
         if self.placed in _COMPILED:
             self._fn, self._out = _COMPILED[self.placed]
             return
+        from lmjx.runtime.compilelock import compiling
+
         with _COMPILING_LOCK:
             kept = _LOWERED.pop(self.placed, None)
-        lowered, names, from_export = kept if kept is not None else self._lower()
-        try:
-            compiled = lowered.compile()
-        except Exception:
-            if not from_export:
-                raise
-            lowered, names, _ = self._lower(export=False)  # an export this JAX cannot compile
-            compiled = lowered.compile()
+        # another process compiling this program meanwhile: wait for it, then load its
+        # compilation from the persistent cache
+        with compiling(program_ident(self.key)):
+            lowered, names, from_export = kept if kept is not None else self._lower()
+            try:
+                compiled = lowered.compile()
+            except Exception:
+                if not from_export:
+                    raise
+                lowered, names, _ = self._lower(export=False)  # an export this JAX cannot compile
+                compiled = lowered.compile()
         # No warm-up call: the first launch loads what remains to load; its outputs'
         # shapes come from the program.
         self._out = {k: (tuple(v.shape[1:]), np.dtype(v.dtype)) for k, v in zip(names, compiled.out_info, strict=True)}
