@@ -58,14 +58,18 @@ def cmd_check(args: argparse.Namespace) -> int:
         "number": sc.number,
         "movable": len(sc.movable),
         "fixed": len(sc.fixed),
+        "cylinders": sum(b.shape == "cylinder" for b in (*sc.movable, *sc.fixed)),
         "goal_center": list(sc.goal_center),
         "goal_size": [2 * h for h in sc.goal_half],
         "budget": sc.budget,
         "map": args.map,
     }
+    cylinders = summary["cylinders"]
+    kind, round_ = ("objects", f" ({cylinders} of them cylinders)") if cylinders else ("boxes", "")
     lines = [
-        f"{args.check}: ok ({task.name}: the target, {len(sc.obstacles)} movable boxes, {len(sc.fixed)} fixed "
-        f"obstacle{'' if len(sc.fixed) == 1 else 's'}, a budget of {sc.budget} actions, placed for {task.robot})",
+        f"{args.check}: ok ({task.name}: the target, {len(sc.obstacles)} movable {kind}, {len(sc.fixed)} fixed "
+        f"obstacle{'' if len(sc.fixed) == 1 else 's'}{round_}, a budget of {sc.budget} actions, placed for "
+        f"{task.robot})",
         f"  checked: {checked}" + ("" if m else "; give --map to check the goal against a map"),
     ]
     _emit(args, summary, lines)

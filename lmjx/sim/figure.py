@@ -1,7 +1,7 @@
 """Pictures of the evaluation scenarios (`lmjx scenarios`): a MuJoCo rendering of the scene
-with the arm at its park pose, beside a top-down diagram of the layout (boxes, fixed walls,
-goal region) in table coordinates.  Without OpenGL only the diagram is drawn.  Written
-atomically."""
+with the arm at its park pose, beside a top-down diagram of the layout (boxes as rectangles,
+cylinders as circles, fixed walls, goal region) in table coordinates.  Without OpenGL only
+the diagram is drawn.  Written atomically."""
 
 from __future__ import annotations
 
@@ -13,13 +13,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import mujoco
 import numpy as np
-from matplotlib.patches import Polygon, Rectangle
+from matplotlib.patches import Circle, Polygon, Rectangle
 
 from lmjx.model.robot import Robot
 from lmjx.runtime.fileio import atomic_path
-from lmjx.sim.scenarios import Layout, Scenario, _corners
+from lmjx.sim.scenarios import Box, Layout, Scenario, _corners
 
 SCENE_VIEW = dict(lookat=(0.32, 0.18, 0.3), distance=2.1, azimuth=212.0, elevation=-32.0)
+
+
+def _footprint(b: Box, pose, **style) -> Polygon | Circle:
+    """A patch of `b`'s footprint at pose (x, y, yaw): a box's rectangle, a cylinder's circle."""
+    if b.shape == "box":
+        return Polygon(_corners(b.half, pose[0], pose[1], pose[2], 0.0), closed=True, **style)
+    return Circle((pose[0], pose[1]), b.half[0], **style)
 
 
 def diagram(ax, sc: Scenario, layout: Layout) -> None:
@@ -29,14 +36,12 @@ def diagram(ax, sc: Scenario, layout: Layout) -> None:
     ax.add_patch(Rectangle((gx - hx, gy - hy), 2 * hx, 2 * hy, color="#2ca02c", alpha=0.35, label="goal region"))
     for f in sc.fixed:
         roof = f.zc - f.half[2] > 2 * sc.target.half[2]
-        poly = _corners(f.half, f.x, f.y, f.yaw, 0.0)
         style = {"facecolor": "#bbbbbb", "alpha": 0.6, "hatch": "//"} if roof else {"facecolor": "#555566"}
-        ax.add_patch(Polygon(poly, closed=True, edgecolor="#333333", label="roof" if roof else "wall", **style))
+        ax.add_patch(_footprint(f, (f.x, f.y, f.yaw), edgecolor="#333333", label="roof" if roof else "wall", **style))
     for i, (b, p) in enumerate(zip(sc.movable, layout.poses, strict=True)):
-        poly = _corners(b.half, p[0], p[1], p[2], 0.0)
         target = i == 0
-        ax.add_patch(Polygon(poly, closed=True, facecolor="#f2c200" if target else "#e8e8e0", edgecolor="#333333",
-                             label="target" if target else ("movable box" if i == 1 else None)))  # fmt: skip
+        ax.add_patch(_footprint(b, p, facecolor="#f2c200" if target else "#e8e8e0", edgecolor="#333333",
+                                label="target" if target else ("movable object" if i == 1 else None)))  # fmt: skip
     ax.plot([0], [0], marker="o", color="k", ms=8)
     ax.annotate("robot base", (0, 0), (0.02, -0.05), fontsize=8)
     ax.set_xlim(-0.05, 0.9)

@@ -6,7 +6,9 @@ target to the tunnel's entrance but sideways looks no better than one that leave
 corner of the wall.  `GoalField` holds, on a grid over the table, the length of the shortest
 path a cube-sized object's centre can take to the goal region's centre (Dijkstra on the
 8-connected grid, whose paths are at most 8 % longer than the true ones; the fixed obstacles
-that reach below the cube's top, grown by the cube's half diagonal, are walls).  Inside a wall
+that reach below the cube's top, grown by the target's footprint radius (a box's half
+diagonal, a cylinder's radius), are walls: a box as its grown rectangle, a cylinder as its
+grown circle).  Inside a wall
 the value is that of the nearest free cell plus twice the distance to it.  With no fixed
 obstacles in the way it is the exact Euclidean distance to the goal's centre, so scenarios 1
 and 3 are scored by plain distance.
@@ -44,12 +46,15 @@ class GoalField:
         gx, gy = np.meshgrid(xs, ys, indexing="xy")  # (ny, nx)
         pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
         half = sc.target.half
-        grow = math.hypot(half[0], half[1])
+        grow = sc.target.footprint_radius  # (a box's half diagonal: math.hypot(half[0], half[1]))
         blocked = np.zeros(len(pts), bool)
         for f in sc.fixed:
             if f.zc - f.half[2] >= 2 * half[2]:
                 continue  # above the cube (a roof)
-            blocked |= _inside(_corners(f.half, f.x, f.y, f.yaw, grow), pts)
+            if f.shape == "box":
+                blocked |= _inside(_corners(f.half, f.x, f.y, f.yaw, grow), pts)
+            else:  # a cylinder: its circle grown by the target's reach
+                blocked |= np.hypot(pts[:, 0] - f.x, pts[:, 1] - f.y) <= f.half[0] + grow
         blocked = blocked.reshape(ny, nx)
         self.goal = np.asarray(sc.goal_center, np.float64)
         self.euclidean = not blocked.any() and weights is None

@@ -8,7 +8,9 @@ drawn per trial from its seed:
   * the robot's collision capsules U(-3, +3) mm thicker or thinner;
   * servo tracking with the robot's "real" joint gains (`RobotProfile.real_kp`, `real_kv`:
     Franka-like for the Panda) and its torque limits instead of near-exact playback;
-  * object poses observed with noise: N(0, 2 mm) on x, y and N(0, 1.5 deg) on yaw.
+  * object poses observed with noise: N(0, 2 mm) on x, y and N(0, 1.5 deg) on yaw; an
+    object is seen upright at its resting height unless it lies 1 cm off it (or, a
+    cylinder, its axis leans more than 10 deg): then at the height where it is.
 The planner sees only observations.  A real robot backend implements `Executor`.
 """
 
@@ -34,6 +36,7 @@ from lmjx.types import CONTROL_DT, Action, Observation
 # after 50-80 ms of absence with the arm never more than 0.32 mm away).  Once the arm has
 # been this far away, touching the object again counts.
 LEAVE_CLEAR = 0.001  # [m]
+UPRIGHT_COS = float(np.cos(np.radians(10.0)))  # a cylinder tilted further than 10 deg is seen as it lies
 
 
 class TransitContacts:
@@ -226,5 +229,9 @@ class SimulatedRealWorld:
         est[:, 4:6] = 0.0
         est[:, 6] = np.sin(yaw / 2)
         upright = np.abs(true[:, 2] - est[:, 2]) < 0.01
+        # a cylinder on its side may rest near its upright height: its axis tells (a box's height alone)
+        round_ = np.array([b.shape != "box" for b in self.scene.scenario.movable])
+        axis_z = 1.0 - 2.0 * (true[:, 4] ** 2 + true[:, 5] ** 2)  # the object's z axis, its world z component
+        upright &= ~round_ | (axis_z > UPRIGHT_COS)
         est[~upright, 2] = true[~upright, 2]  # a fallen or lifted object is seen where it is
         return Observation(self.data.qpos[self.scene.robot_qpos].copy(), est, self.time)

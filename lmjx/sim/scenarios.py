@@ -25,9 +25,10 @@ tunnel's length) about the robot's base by the robot's `task_scale` (`placed`), 
 same three scenarios sit at the same place in the reach of an arm of another size (objects
 keep their sizes).  `sample_layout` varies the movable objects' initial poses per trial
 (seeded): each is moved uniformly within +-`jitter` m and turned within +-`yaw_jitter` rad of
-its nominal pose (the scenario's, or the object's own), keeping objects apart.  `resolve_task`
-makes a scenario of a task set, placed for a robot, a `Task`: the value the entry points make
-once and every stage below them takes; a scene file makes the same value
+its nominal pose (the scenario's, or the object's own), keeping objects apart (a box's
+footprint a rectangle, an upright cylinder's, `Cylinder`, a circle: `lmjx.sim.footprint`).
+`resolve_task` makes a scenario of a task set, placed for a robot, a `Task`: the value the
+entry points make once and every stage below them takes; a scene file makes the same value
 (`lmjx.sim.scenefile`: the three scenarios of both task sets ship as files).  Nothing here
 simulates; `lmjx.sim.scene` builds the MuJoCo models.
 """
@@ -36,11 +37,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from lmjx.errors import ConfigError, SceneError
+from lmjx.sim.footprint import footprints_overlap
 
 if TYPE_CHECKING:
     from lmjx.model.robot import Robot
@@ -54,7 +56,8 @@ GOAL_RGBA = (0.1, 0.8, 0.2, 0.45)
 
 @dataclass(frozen=True)
 class Box:
-    """A box on the table: half extents, nominal pose of its centre (x, y, yaw), mass."""
+    """A box on the table: half extents, nominal pose of its centre (x, y, yaw), mass.  An
+    upright cylinder is a `Cylinder`, a Box of its own shape (`shape`)."""
 
     name: str
     half: tuple[float, float, float]
@@ -70,10 +73,44 @@ class Box:
     friction: float = field(default=0.5, repr=False)  # sliding friction (MuJoCo takes the larger of a pair's)
     jitter: float | None = field(default=None, repr=False)  # [m] its own position jitter; None: the scenario's
     yaw_jitter: float | None = field(default=None, repr=False)  # [rad] its own yaw jitter; None: the scenario's
+    shape: ClassVar[str] = "box"  # (a class value: no field, so a box's repr, equality and asdict hold no shape)
 
     @property
     def zc(self) -> float:
         return self.half[2] if self.z is None else self.z
+
+    @property
+    def footprint_radius(self) -> float:
+        """[m] the radius of the smallest circle about its centre that holds its footprint
+        at any yaw (a box's half diagonal, a cylinder's radius)."""
+        return math.hypot(self.half[0], self.half[1])
+
+
+@dataclass(frozen=True)
+class Cylinder(Box):
+    """An upright cylinder on the table (its axis along z): `half` is (radius, radius, half
+    height), the half sizes of its circumscribing box, and its yaw turns that box (the
+    cylinder itself looks the same at any yaw).  Where a check takes boxes only, the
+    circumscribing box stands for it (conservative: it holds the cylinder).  Its `shape`
+    is a field: its repr, equality and `asdict` tell it from a box of the same half sizes."""
+
+    shape: str = field(default="cylinder", init=False)  # type: ignore[misc]
+
+    def __post_init__(self) -> None:
+        if self.half[0] != self.half[1]:
+            raise SceneError(f"cylinder '{self.name}': half is (radius, radius, half height), got {self.half}")
+
+    @property
+    def radius(self) -> float:
+        return self.half[0]
+
+    @property
+    def height(self) -> float:
+        return 2 * self.half[2]
+
+    @property
+    def footprint_radius(self) -> float:
+        return self.half[0]
 
 
 @dataclass(frozen=True)
@@ -260,8 +297,8 @@ def scenario(number: int, scale: float = 1.0, tasks: str = "paper") -> Scenario:
 
 def placed(sc: Scenario, scale: float) -> Scenario:
     """`sc` with its table positions (the objects', the goal's) scaled by `scale` about the
-    robot's base, and its fixed walls' lengths with them (their thickness kept); objects keep
-    their sizes.  `sc` itself where `scale` is 1."""
+    robot's base, and its fixed walls' lengths with them (their thickness kept; a fixed
+    cylinder keeps its radius); objects keep their sizes.  `sc` itself where `scale` is 1."""
     if scale == 1.0:
         return sc
 
@@ -269,6 +306,8 @@ def placed(sc: Scenario, scale: float) -> Scenario:
         return replace(b, x=b.x * scale, y=b.y * scale)
 
     def stretched(b: Box) -> Box:  # a fixed wall keeps its thickness, its length scales
+        if b.shape != "box":
+            return moved(b)  # a cylinder (a post) keeps its radius
         hx, hy, hz = b.half
         half = (hx * scale, hy, hz) if hx >= hy else (hx, hy * scale, hz)
         return replace(moved(b), half=half)
@@ -365,16 +404,26 @@ def sample_layout(sc: Scenario, seed: int, tries: int = 200) -> Layout:
 
 
 def _separated(boxes: tuple[Box, ...], poses: np.ndarray, fixed: tuple[Box, ...], gap: float = 0.004) -> bool:
-    """No two footprints (grown by gap / 2 each) overlap, nor any with a fixed obstacle on the table."""
+    """No two footprints (grown by gap / 2 each) overlap, nor any with a fixed obstacle on the
+    table (boxes as rectangles, cylinders as circles: `lmjx.sim.footprint`)."""
     polys = [_corners(b.half, *p, gap / 2) for b, p in zip(boxes, poses, strict=True)]
-    for i in range(len(boxes)):
+    for i, a in enumerate(boxes):
         for j in range(i + 1, len(boxes)):
-            if _overlap(polys[i], polys[j]):
+            b = boxes[j]
+            if a.shape == b.shape == "box":
+                hit = _overlap(polys[i], polys[j])
+            else:
+                hit = bool(footprints_overlap(a, poses[i], b, poses[j], gap / 2))
+            if hit:
                 return False
         for f in fixed:
-            if f.zc - f.half[2] > boxes[i].half[2] * 2:
+            if f.zc - f.half[2] > a.half[2] * 2:
                 continue  # above the object (the roof)
-            if _overlap(polys[i], _corners(f.half, f.x, f.y, f.yaw, gap / 2)):
+            if a.shape == f.shape == "box":
+                hit = _overlap(polys[i], _corners(f.half, f.x, f.y, f.yaw, gap / 2))
+            else:
+                hit = bool(footprints_overlap(a, poses[i], f, np.array([f.x, f.y, f.yaw]), gap / 2))
+            if hit:
                 return False
     return True
 

@@ -1,9 +1,10 @@
 """MuJoCo models of the robot with a scenario's objects, for the planner's simulator and for
 the simulated "real" world.
 
-`build_scene` adds the scenario's boxes to the robot's MJCF (lmjx/model/assets/panda.xml, ur5e.xml or a user's)
-through MjSpec: movable boxes as free bodies, the tunnel as static boxes, the goal region as
-a marking without collisions.  `Physics` holds everything that may differ between the
+`build_scene` adds the scenario's objects to the robot's MJCF (lmjx/model/assets/panda.xml, ur5e.xml or a
+user's) through MjSpec: movable boxes and cylinders as free bodies (a box or cylinder geom of
+the object's mass and friction), the fixed ones (the tunnel) as static geoms, the goal region
+as a marking without collisions.  `Physics` holds everything that may differ between the
 planner's simulator and the "real" world: friction, masses, the robot's collision radii,
 the joint servos, the time step.  Nothing here plans or decides.
 """
@@ -16,7 +17,7 @@ import mujoco
 import numpy as np
 
 from lmjx.model.robot import Robot
-from lmjx.sim.scenarios import GOAL_RGBA, Scenario
+from lmjx.sim.scenarios import GOAL_RGBA, Box, Scenario
 
 # Contact groups (contype, conaffinity); MuJoCo lets two geoms touch when either's contype
 # meets the other's conaffinity.  The robot touches the objects and the fixed obstacles, not
@@ -25,6 +26,7 @@ ROBOT_BITS = (1, 0)
 OBJECT_BITS = (2, 3)
 STATIC_BITS = (2, 3)
 TABLE_BITS = {True: (2, 3), False: (2, 2)}
+GEOM_TYPES = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}  # by `Box.shape`
 
 
 @dataclass(frozen=True)
@@ -63,11 +65,17 @@ class Scene:
     obj_qpos: np.ndarray = field(repr=False)  # (n,) qpos address of each movable object's free joint
     obj_dof: np.ndarray = field(repr=False)
     obj_body: np.ndarray = field(repr=False)  # (n,) body ids
-    obj_half: np.ndarray = field(repr=False)  # (n, 3)
+    obj_half: np.ndarray = field(repr=False)  # (n, 3) half sizes (a cylinder's: its circumscribing box's)
 
     @property
     def n_objects(self) -> int:
         return len(self.obj_qpos)
+
+
+def geom_size(b: Box) -> list[float]:
+    """MuJoCo's size of an object's geom: a box's half sizes, a cylinder's radius and half
+    height (its axis along the geom's z)."""
+    return list(b.half) if b.shape == "box" else [b.half[0], b.half[2], 0.0]
 
 
 def yaw_quat(yaw: float) -> np.ndarray:
@@ -142,8 +150,8 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
         body.add_freejoint(name=f"{b.name}_free")
         body.add_geom(
             name=f"{b.name}_geom",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=list(b.half),
+            type=GEOM_TYPES[b.shape],
+            size=geom_size(b),
             rgba=list(b.rgba),
             mass=b.mass * ms[k],
             friction=[b.friction * fs[k], 0.005, 0.0001],
@@ -154,8 +162,8 @@ def build_scene(robot: Robot, sc: Scenario, physics: Physics | None = None, fuse
     for b in sc.fixed:
         spec.worldbody.add_geom(
             name=b.name,
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=list(b.half),
+            type=GEOM_TYPES[b.shape],
+            size=geom_size(b),
             pos=[b.x, b.y, b.zc],
             quat=list(yaw_quat(b.yaw)),
             rgba=list(b.rgba),

@@ -4,6 +4,11 @@ table, the arm itself and the boxes (C MuJoCo one at a time, or lmjx's clearance
 batched over many; a cheap lower bound first where the checks run on the host).  The
 planner's transits (`lmjx.planner.clearance`, `lmjx.planner.transit`) and the map's push
 counts (`lmjx.mapfile.pushmap`) check against it; nothing here plans.
+
+An upright cylinder (`lmjx.sim.scenarios.Cylinder`) is checked as its circumscribing box
+(half sizes radius, radius, half height, turned by its yaw): conservative, the box holds
+the cylinder, so an arm clear of the box's margin is clear of the cylinder's; near the
+box's vertical edges the arm keeps up to (sqrt(2) - 1) x radius farther away than it must.
 """
 
 from __future__ import annotations
@@ -79,7 +84,8 @@ def bound_kernel(robot: Robot, inputs: tuple[np.ndarray, np.ndarray]):
 
 
 def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
-    """The boxes of scenario `sc` with its movable objects at poses `objects` (n, 7)."""
+    """The boxes of scenario `sc` with its movable objects at poses `objects` (n, 7) (a
+    cylinder's: its circumscribing box, module docstring)."""
     boxes = [(b, True) for b in sc.movable] + [(b, False) for b in sc.fixed]
     fixed = [np.array([b.x, b.y, b.zc, *yaw_quat(b.yaw)]) for b in sc.fixed]
     centers, rots = [], []

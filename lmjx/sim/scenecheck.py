@@ -1,6 +1,8 @@
 """Whether a scene can be set up, checked before anything is simulated: a one-line
 `SceneError` for the first thing wrong.
 
+Boxes' footprints are rectangles, upright cylinders' circles (`lmjx.sim.footprint`: every
+test below is exact for both shapes).
 `check_geometry` (needs the robot): every name free in the robot's model; the movable boxes
 apart from each other and from the fixed obstacles at their nominal poses (footprints grown
 by half the gap `sample_layout` keeps), and apart in enough of the poses their jitter draws
@@ -10,7 +12,7 @@ at its nominal pose grown by its position jitter, every fixed obstacle's footpri
 the goal region on it; somewhere in the goal region for the target to rest, clear of the
 fixed obstacles it cannot pass under (`GOAL_POINTS` points tried); no movable box and no
 fixed obstacle through the arm's base (its parts welded to the world: C MuJoCo's distance
-between their geoms and the box, and the base's origin under the box).
+between their geoms and the box or cylinder geom, and the base's origin under the object).
 `check_goal` (needs a map): a reachable cell (NPM or PM, smoothed labels) under the goal
 region.  Nothing here simulates.
 """
@@ -24,6 +26,7 @@ import mujoco
 import numpy as np
 
 from lmjx.errors import SceneError
+from lmjx.sim.footprint import circle_inside, footprints_overlap
 from lmjx.sim.scenarios import Box, Task
 
 if TYPE_CHECKING:
@@ -73,20 +76,27 @@ def _inside(poly: np.ndarray, point: np.ndarray) -> bool:
 def _pairs_overlapping(movable: tuple[Box, ...], poses: np.ndarray, fixed: tuple[Box, ...]) -> np.ndarray:
     """(draws, pairs) which pairs overlap in each of the poses (draws, n, 3): movable pairs
     (i < j), then (movable, fixed) pairs, as `sample_layout` tests them (a fixed obstacle
-    higher than twice a box's half height, the tunnel's roof, is above it)."""
+    higher than twice a box's half height, the tunnel's roof, is above it; boxes as
+    rectangles, cylinders as circles: `lmjx.sim.footprint`)."""
     half = np.array([b.half for b in movable])
     polys = _polygons(half[None], poses, GAP / 2)  # (D, n, 4, 2)
     out = []
     for i in range(len(movable)):
         for j in range(i + 1, len(movable)):
-            out.append(_overlap(polys[:, i], polys[:, j]))
+            if movable[i].shape == movable[j].shape == "box":
+                out.append(_overlap(polys[:, i], polys[:, j]))
+            else:
+                out.append(footprints_overlap(movable[i], poses[:, i], movable[j], poses[:, j], GAP / 2))
     for f in fixed:
-        fp = _polygons(np.array(f.half), np.array([f.x, f.y, f.yaw]), GAP / 2)
+        pose = np.array([f.x, f.y, f.yaw])
+        fp = _polygons(np.array(f.half), pose, GAP / 2)
         for i, b in enumerate(movable):
             if f.zc - f.half[2] > b.half[2] * 2:
                 out.append(np.zeros(len(poses), bool))
-            else:
+            elif b.shape == f.shape == "box":
                 out.append(_overlap(polys[:, i], np.broadcast_to(fp, polys[:, i].shape)))
+            else:
+                out.append(footprints_overlap(b, poses[:, i], f, np.broadcast_to(pose, poses[:, i].shape), GAP / 2))
     return np.stack(out, 1) if out else np.zeros((len(poses), 0), bool)
 
 
@@ -135,13 +145,13 @@ def check_geometry(task: Task, robot: Robot, where: str) -> None:
     lo = robot.arm.table_center[:2] - robot.arm.table_half[:2]
     hi = robot.arm.table_center[:2] + robot.arm.table_half[:2]
     for b, j in zip(movable, jit, strict=True):
-        corners = _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), float(j) * math.sqrt(2))
+        corners = _extent(b, float(j))
         if np.any(corners < lo) or np.any(corners > hi):
             raise SceneError(f"{where}: '{b.name}' at ({b.x:g}, {b.y:g}) is off the table (its top spans x "
                              f"{lo[0]:g} to {hi[0]:g}, y {lo[1]:g} to {hi[1]:g} m, jitter included); move it onto "
                              "the table")  # fmt: skip
     for f in fixed:
-        corners = _polygons(np.array(f.half), np.array([f.x, f.y, f.yaw]), 0.0)
+        corners = _extent(f, 0.0)
         if np.any(corners < lo - EDGE_TOL) or np.any(corners > hi + EDGE_TOL):
             raise SceneError(f"{where}: the fixed obstacle '{f.name}' at ({f.x:g}, {f.y:g}) reaches off the table "
                              f"(its top spans x {lo[0]:g} to {hi[0]:g}, y {lo[1]:g} to {hi[1]:g} m); move it onto the "
@@ -160,6 +170,16 @@ def check_geometry(task: Task, robot: Robot, where: str) -> None:
     _check_base(task, robot, where)
 
 
+def _extent(b: Box, jitter: float) -> np.ndarray:
+    """Points (k, 2) whose bounding rectangle is that of everywhere `b`'s footprint reaches
+    moved by up to `jitter` in x and y (and turned, by any yaw): a box's corners grown by
+    jitter x sqrt(2) (at its nominal yaw), a cylinder's circle's extreme points, exactly."""
+    if b.shape == "box":
+        return _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), jitter * math.sqrt(2))
+    r = b.half[0] + jitter
+    return np.array([[b.x - r, b.y - r], [b.x + r, b.y + r]])
+
+
 def goal_cover(task: Task) -> tuple[Box, ...]:
     """The fixed obstacles that leave the target no place in the goal region, most of the
     region first (empty where it has one).  The target's centre is tried at `GOAL_POINTS` x
@@ -176,9 +196,12 @@ def goal_cover(task: Task) -> tuple[Box, ...]:
     (cx, cy), (hx, hy) = sc.goal_center, sc.goal_half
     gx, gy = np.meshgrid(np.linspace(cx - hx, cx + hx, GOAL_POINTS), np.linspace(cy - hy, cy + hy, GOAL_POINTS))
     pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    reach = min(t.half[0], t.half[1])  # the target covers this disc about its centre at any yaw
+    reach = min(t.half[0], t.half[1])  # the target covers this disc about its centre at any yaw (a cylinder's own)
     taken = np.zeros((len(low), len(pts)), bool)
     for k, f in enumerate(low):
+        if f.shape != "box":  # a cylinder: the distance to its circle
+            taken[k] = np.hypot(pts[:, 0] - f.x, pts[:, 1] - f.y) - f.half[0] < reach
+            continue
         c, s = math.cos(f.yaw), math.sin(f.yaw)
         d = pts - [f.x, f.y]
         local = np.stack([d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c], axis=1)
@@ -212,8 +235,11 @@ def _check_base(task: Task, robot: Robot, where: str) -> None:
         g = m.geom(b.name if not b.movable else f"{b.name}_geom").id
         through = any(mujoco.mj_geomDistance(m, d, g, int(k), 0.01, None) < 0 for k in base)
         if not through and b.zc - b.half[2] < BASE_HEIGHT:  # reaching down to the table over the base's origin
-            poly = _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), 0.0)
-            through = any(_inside(poly, o[:2]) for o in origins)
+            if b.shape == "box":
+                poly = _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), 0.0)
+                through = any(_inside(poly, o[:2]) for o in origins)
+            else:
+                through = any(circle_inside(o[:2], (b.x, b.y), b.half[0]) for o in origins)
         if through:
             kind = "movable box" if b.movable else "fixed obstacle"
             raise SceneError(f"{where}: the {kind} '{b.name}' at ({b.x:g}, {b.y:g}) passes through the arm's base; "

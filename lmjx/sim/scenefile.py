@@ -1,8 +1,9 @@
 """Scene files: a user's table as data (TOML, format "lmjx-scene/1"; docs/SCENES.md).
 
 A scene file describes what a scenario holds (`lmjx.sim.scenarios.Scenario`): the table's
-friction; the target box and the movable boxes (size, mass, friction, nominal pose, jitter);
-the fixed obstacles; the goal region; the action budget.  `read_scene` checks every key
+friction; the target and the movable objects (boxes, or upright cylinders with `shape =
+"cylinder"`, a radius and a height: `Cylinder`; size, mass, friction, nominal pose,
+jitter); the fixed obstacles (boxes or cylinders); the goal region; the action budget.  `read_scene` checks every key
 (an unknown key, a wrong type or a value out of range is a one-line `SceneError` naming the
 key and the fix) and gives the scenario as written; `load_scene` places it for a robot and
 checks its geometry before anything is simulated (`lmjx.sim.scenecheck`); `scene_text`
@@ -36,6 +37,7 @@ from lmjx.sim.scenarios import (
     TARGET_RGBA,
     TASK_SETS,
     Box,
+    Cylinder,
     Scenario,
     Task,
     placed,
@@ -64,8 +66,8 @@ TOP = {
     "scale_with_robot": "true: positions scale with the robot's size (as the shipped scenarios'); default false",
     "table": "a table: friction",
     "jitter": "a table: position, yaw",
-    "target": "a table: the target box",
-    "obstacles": "an array of tables ([[obstacles]]): the movable boxes",
+    "target": "a table: the target (a box or a cylinder)",
+    "obstacles": "an array of tables ([[obstacles]]): the movable objects (boxes or cylinders)",
     "fixed": "an array of tables ([[fixed]]): the fixed obstacles",
     "goal": "a table: the goal region",
 }
@@ -74,8 +76,12 @@ JITTER = {
     "position": "[m] how far each trial moves the movable boxes in x and y, a number at least 0 (default 0.02)",
     "yaw": "[rad] how far each trial turns them, a number at least 0 (default 0.26)",
 }
+SHAPES = ("box", "cylinder")
 BOX = {
     "size": "[m] the box's full size [x, y, z], three numbers above 0",
+    "shape": 'its shape, "box" (default: with size) or "cylinder" (an upright one: with radius and height)',
+    "radius": "[m] the cylinder's radius, a number above 0 and at most 1",
+    "height": "[m] the cylinder's height, a number above 0 and at most 2",
     "position": "[m] its centre's nominal [x, y] on the table",
     "yaw": "[rad] its nominal turn about z (default 0)",
     "friction": "its sliding friction, a number above 0 (default 0.5)",
@@ -198,8 +204,25 @@ class _Reader:
         raise self.fail(key, f"give one line of text, got {v!r}")
 
     def box(self, data: Any, where: str, keys: dict, name: str, movable: bool, rgba: tuple) -> Box:
-        d = self.table(data, where, keys, ("size", "position"))
-        half = tuple(s / 2 for s in self.vector(d, "size", where, 3, 0.0, 2.0, above=True))
+        d = self.table(data, where, keys)
+        shape = d.get("shape", "box")
+        if shape not in SHAPES:
+            raise self.fail(f"{where}.shape", f'give "box" or "cylinder", got {shape!r}')
+        if shape == "box" and ("radius" in d or "height" in d):
+            k = "radius" if "radius" in d else "height"
+            raise self.fail(where, f"'{k}' is a cylinder's: give a box size = [x, y, z], or shape = \"cylinder\" "
+                                   "with radius and height")  # fmt: skip
+        if shape == "cylinder" and "size" in d:
+            raise self.fail(where, "a cylinder takes radius and height, not size; give radius = ... and height = ...")
+        for k in (("size",) if shape == "box" else ("radius", "height")) + ("position",):
+            if k not in d:
+                raise self.fail(where, f"'{k}' is missing: give {keys[k]}")
+        half: tuple[float, ...]
+        if shape == "box":
+            half = tuple(s / 2 for s in self.vector(d, "size", where, 3, 0.0, 2.0, above=True))
+        else:
+            r = self.number(d, "radius", where, None, 0.0, 1.0, above=True)
+            half = (r, r, self.number(d, "height", where, None, 0.0, 2.0, above=True) / 2)
         x, y = self.vector(d, "position", where, 2, -10.0, 10.0)
         extra: dict[str, Any] = {}
         if movable:
@@ -210,7 +233,8 @@ class _Reader:
         elif "z" in d:
             extra["z"] = self.number(d, "z", where, None, -2.0, 5.0)
         color = self.vector(d, "color", where, 4, 0.0, 1.0) if "color" in d else rgba
-        return Box(name, half, x, y, yaw=self.number(d, "yaw", where, 0.0, -100.0, 100.0), movable=movable,
+        kind = Box if shape == "box" else Cylinder
+        return kind(name, half, x, y, yaw=self.number(d, "yaw", where, 0.0, -100.0, 100.0), movable=movable,
                    rgba=color, friction=self.number(d, "friction", where, 0.5, 0.0, 10.0, above=True),
                    **extra)  # fmt: skip
 
@@ -351,7 +375,11 @@ def _vec(values) -> str:
 
 def _box_lines(b: Box, movable_keys: bool, default_rgba: tuple, name: bool) -> list[str]:
     lines = [f"name = {json.dumps(b.name)}"] if name else []
-    lines += [f"size = {_vec(2 * h for h in b.half)}", f"position = {_vec((b.x, b.y))}"]
+    if b.shape == "box":
+        lines.append(f"size = {_vec(2 * h for h in b.half)}")
+    else:  # (2 x and / 2 are exact: the radius and height read back to the bit)
+        lines += [f"shape = {json.dumps(b.shape)}", f"radius = {_num(b.half[0])}", f"height = {_num(2 * b.half[2])}"]
+    lines.append(f"position = {_vec((b.x, b.y))}")
     if b.yaw:
         lines.append(f"yaw = {_num(b.yaw)}")
     if movable_keys:

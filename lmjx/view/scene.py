@@ -1,8 +1,9 @@
 """The scene view: a scene file (or any task) before planning: the table, the target and the
-movable boxes at their nominal poses, the fixed obstacles and the goal region (`lmjx.view.world`),
-the arm (in its failure's park pose with a map, else in its ready pose), and, with a map, its
-reach cells under them (PM, NPM, unreachable: `lmjx.view.map.draw_cells`), so that a user sees
-where the goal and the objects lie against what the arm reaches.  Nothing is simulated."""
+movable objects (boxes, cylinders) at their nominal poses, the fixed obstacles and the goal
+region (`lmjx.view.world`), the arm (in its failure's park pose with a map, else in its ready
+pose), and, with a map, its reach cells under them (PM, NPM, unreachable:
+`lmjx.view.map.draw_cells`), so that a user sees where the goal and the objects lie against
+what the arm reaches.  Nothing is simulated."""
 
 from __future__ import annotations
 
@@ -63,7 +64,8 @@ class SceneView:
         self.drawn = draw_world(server, ROOT, scene.model, d, sc)
         pose = f"the arm in failure {failure}'s park pose" if failure else "the arm in its ready pose"
         cells = "; the map's reach cells (smoothed labels) under them" if reach is not None else ""
-        sizes = (f"the target, {_count(len(sc.obstacles), 'movable box', 'es')} at their nominal poses, "
+        movable = ("movable box", "es") if all(b.shape == "box" for b in sc.obstacles) else ("movable object", "s")
+        sizes = (f"the target, {_count(len(sc.obstacles), *movable)} at their nominal poses, "
                  f"{_count(len(sc.fixed), 'fixed obstacle')}")  # fmt: skip
         lines = tuple(x for x in (sc.description, f"{sizes}; budget {sc.budget} actions; {pose}{cells}.", source) if x)
         legend = ("pm", "npm", "unreachable") if reach is not None else ()

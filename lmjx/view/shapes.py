@@ -1,9 +1,9 @@
 """MuJoCo geoms as triangle meshes for the viewer: each geom's mesh in its own frame (a mesh
 geom's own triangles, `mesh_vert` and `mesh_face`; capsules, boxes and the other primitives
-tessellated), its pose in the world from `mj_kinematics`, which geoms show a body (its mesh
-geoms where it has any: an MJCF's visual meshes; else its capsules and boxes), and the arm
-merged into one mesh at a configuration (the swept arm).  Pure numpy and MuJoCo; nothing
-here draws."""
+tessellated, a cylinder with flat caps as C MuJoCo's), its pose in the world from
+`mj_kinematics`, which geoms show a body (its mesh geoms where it has any: an MJCF's visual
+meshes; else its capsules, boxes and cylinders), and the arm merged into one mesh at a
+configuration (the swept arm).  Pure numpy and MuJoCo; nothing here draws."""
 
 from __future__ import annotations
 
@@ -42,6 +42,25 @@ def capsule(radius: float, half_length: float, segments: int = CAPSULE_SEGMENTS,
     return Mesh(verts, np.array(faces, np.uint32))
 
 
+def cylinder(radius: float, half_height: float, segments: int = CAPSULE_SEGMENTS) -> Mesh:
+    """An upright cylinder along z of `radius` and half height `half_height`, flat caps, centred
+    at the origin (its side a prism of `segments` faces whose corners lie on the circle)."""
+    t = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ring = np.stack([radius * np.cos(t), radius * np.sin(t)], -1)
+    verts = np.concatenate([
+        np.column_stack([ring, np.full(segments, -half_height)]),
+        np.column_stack([ring, np.full(segments, half_height)]),
+        [[0.0, 0.0, -half_height], [0.0, 0.0, half_height]],
+    ]).astype(np.float32)  # fmt: skip
+    bottom, top = 2 * segments, 2 * segments + 1
+    faces = []
+    for j in range(segments):  # counter-clockwise seen from outside: the normals point out
+        a, b = j, (j + 1) % segments
+        faces += [(a, b, b + segments), (a, b + segments, a + segments), (bottom, b, a),
+                  (top, a + segments, b + segments)]  # fmt: skip
+    return Mesh(verts, np.array(faces, np.uint32))
+
+
 def box(half: np.ndarray) -> Mesh:
     """A box of half sizes `half` (3,), centred at the origin."""
     h = np.asarray(half, np.float32)
@@ -64,8 +83,8 @@ def mesh_asset(m: mujoco.MjModel, mesh_id: int) -> Mesh:
 
 def geom_mesh(m: mujoco.MjModel, g: int) -> Mesh | None:
     """Geom g's mesh in its own frame: a mesh geom's triangles; capsules, boxes, planes (a thin
-    box), spheres and cylinders (as round-capped shapes); None for other types (height fields,
-    ellipsoids: lmjx's models use none)."""
+    box), spheres (round) and cylinders (flat caps: `cylinder`); None for other types (height
+    fields, ellipsoids: lmjx's models use none)."""
     t, size = int(m.geom_type[g]), m.geom_size[g]
     if t == mujoco.mjtGeom.mjGEOM_MESH and m.geom_dataid[g] >= 0:
         return mesh_asset(m, int(m.geom_dataid[g]))
@@ -76,7 +95,7 @@ def geom_mesh(m: mujoco.MjModel, g: int) -> Mesh | None:
     if t == mujoco.mjtGeom.mjGEOM_SPHERE:
         return capsule(float(size[0]), 0.0)
     if t == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return capsule(float(size[0]), float(size[1]), rings=1)
+        return cylinder(float(size[0]), float(size[1]))
     if t == mujoco.mjtGeom.mjGEOM_PLANE:
         return box(np.array([size[0] or 2.0, size[1] or 2.0, 1e-4]))
     return None
