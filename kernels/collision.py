@@ -1,4 +1,5 @@
-"""Clearances between the arm's capsules, the table and a box, for one configuration.
+"""Clearances between the arm's capsules, the table and a box (or an upright cylinder), for
+one configuration.
 
 Clearance is a signed distance in metres: positive means apart, negative means penetration
 (C MuJoCo reports a contact exactly when it is negative).  Vectors are scalar tuples (see
@@ -89,6 +90,15 @@ def box_sdf(p: Vec, half: Sequence[float]) -> jnp.ndarray:
     return outside + inside
 
 
+def cylinder_sdf(p: Vec, radius: jnp.ndarray | float, half_height: jnp.ndarray | float) -> jnp.ndarray:
+    """Signed distance of points `p`, given in a cylinder's frame (its axis z, its centre the
+    origin), to the solid cylinder of `radius` and half height `half_height`."""
+    dr = jnp.sqrt(p[0] * p[0] + p[1] * p[1]) - radius
+    dz = jnp.abs(p[2]) - half_height
+    o_r, o_z = jnp.maximum(dr, 0.0), jnp.maximum(dz, 0.0)
+    return jnp.sqrt(o_r * o_r + o_z * o_z) + jnp.minimum(jnp.maximum(dr, dz), 0.0)
+
+
 def capsule_box_clearance(
     a_w: Vec,
     b_w: Vec,
@@ -98,6 +108,7 @@ def capsule_box_clearance(
     half: Sequence[float],
     iters: int = 24,
     unroll: bool = True,
+    cylinders: bool = False,
 ) -> jnp.ndarray:
     """Signed distance between capsules [a_w, b_w] of `radius` and a box (centre, R_world_box).
 
@@ -105,13 +116,19 @@ def capsule_box_clearance(
     segment parameter: a golden-section search (one new evaluation per step) finds its
     minimum; 24 steps shrink the bracket to 1e-5 of the segment, and the distance error is
     smaller still, the function being flat (or, at a box edge, of slope <= 1) there.
+    `cylinders` (static): a box whose y half size is negative is an upright cylinder of
+    radius half[0] and half height half[2] about the box's z axis, its exact signed distance
+    (`cylinder_sdf`, convex too) taken instead; False traces the boxes' program alone.
     """
     a_l = mtvec(rot, vsub(a_w, center))
     b_l = mtvec(rot, vsub(b_w, center))
     d = vsub(b_l, a_l)
 
     def f(t: jnp.ndarray) -> jnp.ndarray:
-        return box_sdf((a_l[0] + d[0] * t, a_l[1] + d[1] * t, a_l[2] + d[2] * t), half)
+        p = (a_l[0] + d[0] * t, a_l[1] + d[1] * t, a_l[2] + d[2] * t)
+        if cylinders:
+            return jnp.where(half[1] < 0, cylinder_sdf(p, half[0], half[2]), box_sdf(p, half))
+        return box_sdf(p, half)
 
     g = 0.6180339887498949
     zero = jnp.zeros_like(a_l[0] + d[0])
@@ -188,12 +205,19 @@ class BoxClearance(NamedTuple):
 
 
 def boxes_clearance(
-    arm: ArmModel, q: jnp.ndarray, centers: jnp.ndarray, rots: jnp.ndarray, halves: jnp.ndarray, unroll: bool = True
+    arm: ArmModel,
+    q: jnp.ndarray,
+    centers: jnp.ndarray,
+    rots: jnp.ndarray,
+    halves: jnp.ndarray,
+    unroll: bool = True,
+    cylinders: bool = False,
 ) -> BoxClearance:
     """Signed distance from the arm at joint angles q (nj,) to each of nb boxes (centres
     (nb, 3), world-from-box rotations (nb, 3, 3), half sizes (nb, 3); all traced, so one
     program serves any scene of nb boxes): the smallest over the arm's capsules.  A padding
-    box far away (or of zero size) is harmless."""
+    box far away (or of zero size) is harmless.  `cylinders` (static): rows of halves with a
+    negative y half size are upright cylinders (`capsule_box_clearance`), exactly."""
     poses = body_poses(arm.tree, [q[j] for j in range(q.shape[0])])
     caps = list(range(len(arm.cap_r)))
     a_w, b_w = capsule_endpoints(arm, poses, caps, q[0])
@@ -203,7 +227,7 @@ def boxes_clearance(
     rot = tuple(tuple(rots[None, :, r, c] for c in range(3)) for r in range(3))
     half = [halves[None, :, k] for k in range(3)]
     radius = np.asarray(arm.cap_r, np.float32)[:, None]
-    d = capsule_box_clearance(a2, b2, radius, center, rot, half, unroll=unroll)  # type: ignore[arg-type]
+    d = capsule_box_clearance(a2, b2, radius, center, rot, half, unroll=unroll, cylinders=cylinders)  # type: ignore[arg-type]
     return BoxClearance(jnp.min(d, axis=0))
 
 

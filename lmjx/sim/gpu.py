@@ -215,7 +215,8 @@ class GpuSimulator:
         self.mjm = copy.copy(scene.model)
         if not self.config.native_ccd:
             # C MuJoCo collides box pairs with its primitive box-box routine; MuJoCo Warp does
-            # the same only with native CCD off (the scene has no convex pairs to use it for).
+            # the same only with native CCD off (which it reads for box pairs alone: a scene's
+            # cylinders keep its convex GJK/EPA path).
             self.mjm.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_NATIVECCD
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):

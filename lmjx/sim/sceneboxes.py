@@ -5,10 +5,11 @@ batched over many; a cheap lower bound first where the checks run on the host). 
 planner's transits (`lmjx.planner.clearance`, `lmjx.planner.transit`) and the map's push
 counts (`lmjx.mapfile.pushmap`) check against it; nothing here plans.
 
-An upright cylinder (`lmjx.sim.scenarios.Cylinder`) is checked as its circumscribing box
-(half sizes radius, radius, half height, turned by its yaw): conservative, the box holds
-the cylinder, so an arm clear of the box's margin is clear of the cylinder's; near the
-box's vertical edges the arm keeps up to (sqrt(2) - 1) x radius farther away than it must.
+An upright cylinder (`lmjx.sim.scenarios.Cylinder`) is checked exactly: the clearance
+program of a scene with cylinders takes their signed distance (`kernels.collision.
+cylinder_sdf`; `padded` marks a cylinder's row by a negative y half size), a program apart
+made the first time a scene has one (`BoxKernel`), so that scenes of boxes alone run the
+boxes' program as ever; the lower bound takes a cylinder's own circumradius.
 """
 
 from __future__ import annotations
@@ -41,14 +42,20 @@ class SceneBoxes:
     movable: np.ndarray  # (nb,) bool
     centers: np.ndarray  # (nb, 3)
     rots: np.ndarray  # (nb, 3, 3) world from box
-    halves: np.ndarray  # (nb, 3)
+    halves: np.ndarray  # (nb, 3) (a cylinder's: radius, radius, half height)
+    cylinders: np.ndarray | None = None  # (nb,) bool: upright cylinders (None: none)
+
+    def cylinder_mask(self) -> np.ndarray:
+        """(nb,) which boxes are upright cylinders."""
+        return np.zeros(len(self.names), bool) if self.cylinders is None else np.asarray(self.cylinders, bool)
 
     def margins(self) -> np.ndarray:
         return np.where(self.movable, OBJECT_MARGIN, FIXED_MARGIN)
 
     def padded(self, n: int = MAX_BOXES, which: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(centres, rotations, half sizes) of `n` boxes, float32: the scene's (or those
-        `which` lists), then boxes of no size far below the table."""
+        `which` lists), then boxes of no size far below the table; a cylinder's row of half
+        sizes is (radius, -radius, half height), the clearance program's mark of one."""
         which = np.arange(len(self.names)) if which is None else np.asarray(which)
         nb = len(which)
         if nb > n:
@@ -58,12 +65,15 @@ class SceneBoxes:
         r = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
         h = np.zeros((n, 3), np.float32)
         c[:nb], r[:nb], h[:nb] = self.centers[which], self.rots[which], self.halves[which]
+        h[:nb, 1] = np.where(self.cylinder_mask()[which], -h[:nb, 1], h[:nb, 1])
         return c, r, h
 
     def bound_inputs(self, n: int = MAX_BOXES) -> tuple[np.ndarray, np.ndarray]:
         """(centres, circumradii) of `n` box slots, float32, for the lower bound's program:
-        the scene's boxes, then points far below the table."""
+        the scene's boxes (a cylinder's: the hypotenuse of its radius and half height),
+        then points far below the table."""
         c, _, h = self.padded(n)
+        h[:, 1] = np.where(h[:, 1] < 0, 0.0, h[:, 1])  # (a cylinder: its radius once)
         return c, np.linalg.norm(h, axis=1).astype(np.float32)
 
 
@@ -84,8 +94,8 @@ def bound_kernel(robot: Robot, inputs: tuple[np.ndarray, np.ndarray]):
 
 
 def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
-    """The boxes of scenario `sc` with its movable objects at poses `objects` (n, 7) (a
-    cylinder's: its circumscribing box, module docstring)."""
+    """The boxes and cylinders of scenario `sc` with its movable objects at poses `objects`
+    (n, 7)."""
     boxes = [(b, True) for b in sc.movable] + [(b, False) for b in sc.fixed]
     fixed = [np.array([b.x, b.y, b.zc, *yaw_quat(b.yaw)]) for b in sc.fixed]
     centers, rots = [], []
@@ -100,6 +110,7 @@ def scene_boxes(sc, objects: np.ndarray) -> SceneBoxes:
         centers=np.asarray(centers, np.float64).reshape(-1, 3),
         rots=np.asarray(rots, np.float64).reshape(-1, 3, 3),
         halves=np.asarray([b.half for b, _ in boxes], np.float64).reshape(-1, 3),
+        cylinders=np.array([b.shape == "cylinder" for b, _ in boxes], bool),
     )
 
 
@@ -146,10 +157,9 @@ def box_slots(nb: int) -> int:
     return EDGE_BOXES if nb <= EDGE_BOXES else MAX_BOXES
 
 
-def box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
-    """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared
-    (inputs: one program for every scene of as many boxes as `boxes` holds, padded; see
-    `box_slots`)."""
+def _box_program(robot: Robot, boxes: tuple[np.ndarray, ...], cylinders: bool):
+    """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared:
+    the boxes' program, or (`cylinders`) the one that also takes cylinders exactly."""
     from kernels.collision import boxes_clearance
     from lmjx.runtime.batching import ChunkedKernel, backend
 
@@ -157,15 +167,41 @@ def box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]):
     chunk = 1 << 14 if backend() != "cpu" else SMALL_CHUNK  # CPU: calls hold a few dozen configurations
 
     def one(centers, rots, halves, q):
-        return boxes_clearance(robot.arm, q, centers, rots, halves, unroll)
+        return boxes_clearance(robot.arm, q, centers, rots, halves, unroll, cylinders)
 
-    return ChunkedKernel(
-        ("boxes_clearance", robot.model_hash, unroll, len(boxes[0])),
-        one,
-        list(boxes),
-        [(np.float32, (robot.nq,))],
-        chunk,
-    )
+    key = ("boxes_clearance", robot.model_hash, unroll, len(boxes[0])) + (("cylinders",) if cylinders else ())
+    return ChunkedKernel(key, one, list(boxes), [(np.float32, (robot.nq,))], chunk)
+
+
+class BoxKernel:
+    """The arm's clearance to a scene's boxes over chunks of configurations (`run(q)` ->
+    {"box_clearance": (n, slots)}), the boxes given by `set_shared(*SceneBoxes.padded(...))`:
+    the boxes' program while the scene has none but boxes, the one that takes cylinders too
+    (made the first time a scene has one) while it has cylinders; each made once and given
+    each later scene's boxes."""
+
+    def __init__(self, robot: Robot, boxes: tuple[np.ndarray, ...]) -> None:
+        self.robot = robot
+        self.programs: dict[bool, Any] = {}
+        self.cylinders = False
+        self.set_shared(*boxes)
+
+    def set_shared(self, *boxes: np.ndarray) -> None:
+        self.cylinders = bool((np.asarray(boxes[2])[:, 1] < 0).any())
+        if self.cylinders in self.programs:
+            self.programs[self.cylinders].set_shared(*boxes)
+        else:
+            self.programs[self.cylinders] = _box_program(self.robot, boxes, self.cylinders)
+
+    def run(self, *arrays: np.ndarray, **kw: Any) -> dict[str, np.ndarray]:
+        return self.programs[self.cylinders].run(*arrays, **kw)
+
+
+def box_kernel(robot: Robot, boxes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> BoxKernel:
+    """jit(vmap(boxes_clearance)) over chunks of configurations, the scene's boxes shared
+    (inputs: one program for every scene of as many boxes as `boxes` holds, padded; see
+    `box_slots`; a scene with cylinders: the program that takes them, `BoxKernel`)."""
+    return BoxKernel(robot, boxes)
 
 
 class SceneClearance:
