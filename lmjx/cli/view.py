@@ -59,10 +59,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "from a remote server: ssh -L 8080:localhost:8080 HOST). A map (.h5): the table, the arm in its failure's "
         "park pose, the reach map's cells (PM green, NPM blue, unreachable grey, as lmjx reach --png draws them) "
         "and, for a selected cell (click it), the edges whose arm acts there. A scene file (.toml): the table, the "
-        "target, the movable boxes, the fixed obstacles and the goal region before planning; with --map, the "
-        "reach cells under them. A trial (lmjx plan --json output, or --trial of an evaluation's results.json): "
-        "replayed in its scene, with a time slider. An evaluation folder: its report and each of its trials. "
-        "Every page has a title and a legend of its colours. Needs viser: pip install -e '.[view]'.",
+        "target, the movable boxes and cylinders, the fixed obstacles and the goal region before planning; with "
+        "--map, the reach cells under them. A trial (lmjx plan --json output, or --trial of an evaluation's "
+        "results.json): replayed in its scene, with a time slider. An evaluation folder: its report and each of its "
+        "trials. Every page has a title and a legend of its colours. Needs viser: pip install -e '.[view]'.",
     )
     p.add_argument(
         "path",

@@ -1,5 +1,5 @@
 """A scenario's MuJoCo scene drawn into a viser scene: the table, the fixed obstacles, the
-goal region, the target and the movable boxes, and the arm, each geom in the colour of its
+goal region, the target and the movable boxes and cylinders, and the arm, each geom in the colour of its
 part (`lmjx.view.style`: the arm's own, the boxes' and the goal's as the simulator gives
 them), with labels naming the target, the goal and the fixed obstacles; the bodies that
 move get frames of their own, which the trial view moves.  Shared by the trial view and the
