@@ -7,6 +7,7 @@ shared small map."""
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 from conftest import TINY_ARM, TINY_MAP, cli
@@ -84,18 +85,20 @@ def test_build_map_writes_what_build_map_writes(tiny_map, tmp_path):
     command's file."""
     args = dict(zip(TINY_MAP[::2], TINY_MAP[1::2], strict=True))
     out = tmp_path / "api.h5"
+    t0 = time.perf_counter()
     b = lmjx.build_map(args["--failure"], robot=TINY_ARM, out=out, edges=int(args["--edges"]),
                        cell=float(args["--cell"]), seed=int(args["--seed"]), chunk=int(args["--chunk"]))  # fmt: skip
+    wall = time.perf_counter() - t0
     assert same_datasets(tiny_map, out) == [] and attributes(tiny_map) == attributes(out)
     s = b.summary()
     assert s["failure"] == "J4=0.5" and s["edges"]["edges_valid"] > 0 and s["reach"]["cell_m"] == 0.05
     # compiling by stage, each program once (the edges' starts share the reach map's IK
     # program); the fixture's build compiled them in this process: nothing is compiled again.
-    # The whole is the wall time during which something compiled: at most the stages' sum
-    # (each rounded to 0.1 ms)
+    # The whole is the wall time during which something compiled or waited for another
+    # process compiling the same program: never above the build's own wall time
     stages = s["compile_seconds_by_stage"]
     assert set(stages) == {"reach", "edges", "index"}
-    assert 0.0 <= s["compile_seconds"] <= sum(stages.values()) + 3e-4
+    assert 0.0 <= s["compile_seconds"] <= wall
     assert s["edges"]["compile_seconds"] == stages["edges"] and s["compile_seconds"] < 1.0
     assert s["compiled_for_later"] is None  # not on a CPU unless asked for
     assert "edges kept of 1,200 sampled" in repr(b)

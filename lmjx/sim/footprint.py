@@ -10,12 +10,20 @@ holds the circle at any yaw.  Pure numpy; nothing here knows the scene."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from lmjx.sim.scenarios import Box
+
+class Box(Protocol):
+    """What a footprint needs of an object (`lmjx.sim.scenarios.Box`, `Cylinder`): its shape
+    ("box" or "cylinder") and half sizes (a cylinder's: radius, radius, half height)."""
+
+    @property
+    def shape(self) -> str: ...
+
+    @property
+    def half(self) -> tuple[float, float, float]: ...
 
 
 def rect_corners(half: np.ndarray, poses: np.ndarray, grow: float) -> np.ndarray:
