@@ -32,7 +32,7 @@ run: $(RUN_STAMP)
 
 test: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks examples
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests  # two workers, a file each: most tests run one core's Python
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests  # two workers, a file each (the longest first: tests/conftest.py)
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check lmjx kernels tests benchmarks examples

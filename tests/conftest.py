@@ -416,10 +416,14 @@ def _compile_ahead(request: pytest.FixtureRequest):
 
 # ------------------------------------------------------------------------------ the longest files first
 
-# the files that take longest (a cold compile cache, two workers: `make test`), started first so
-# that pytest-xdist's workers (a file each, `--dist loadfile`) do not end with one of them alone
-LONGEST_FIRST = ("test_planning.py", "test_robot_import.py", "test_planning_quality.py", "test_bench_ik.py",
-                 "test_cli.py", "test_scenes.py", "test_docs.py", "test_reach.py", "test_edgestream.py")  # fmt: skip
+# the files that take longest (a cold compile cache, two workers: `make test`, which keeps this
+# order: --no-loadscope-reorder), first, so that pytest-xdist's workers (a file each, `--dist
+# loadfile`; each starts with two files, then takes the next as it runs short) do not end with one
+# of them alone; the planner's files apart, the second starting once the first has built the maps
+# both read (`built_once`), the files without those maps between
+LONGEST_FIRST = ("test_planning.py", "test_robot_import.py", "test_reach.py", "test_edgestream.py",
+                 "test_planning_quality.py", "test_cli.py", "test_scenes.py", "test_bench_ik.py",
+                 "test_docs.py")  # fmt: skip
 
 
 def pytest_collection_modifyitems(config, items):
