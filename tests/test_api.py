@@ -93,13 +93,14 @@ def test_build_map_writes_what_build_map_writes(tiny_map, tmp_path):
     s = b.summary()
     assert s["failure"] == "J4=0.5" and s["edges"]["edges_valid"] > 0 and s["reach"]["cell_m"] == 0.05
     # compiling by stage, each program once (the edges' starts share the reach map's IK
-    # program); the fixture's build compiled them in this process: nothing is compiled again.
+    # program); the run built the fixture's map already (maybe in another worker), so each
+    # program is in this process or loaded from the run's compile cache: seconds at most.
     # The whole is the wall time during which something compiled or waited for another
     # process compiling the same program: never above the build's own wall time
     stages = s["compile_seconds_by_stage"]
     assert set(stages) == {"reach", "edges", "index"}
     assert 0.0 <= s["compile_seconds"] <= wall
-    assert s["edges"]["compile_seconds"] == stages["edges"] and s["compile_seconds"] < 1.0
+    assert s["edges"]["compile_seconds"] == stages["edges"] and s["compile_seconds"] < 5.0
     assert s["compiled_for_later"] is None  # not on a CPU unless asked for
     assert "edges kept of 1,200 sampled" in repr(b)
     with b.load() as m:
