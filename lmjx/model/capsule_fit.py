@@ -186,9 +186,12 @@ def fit_capsules(points: np.ndarray, max_capsules: int = MAX_CAPSULES) -> list[C
     if len(points) >= 8:
         w, vecs = np.linalg.eigh(np.cov((points - points.mean(0)).T))
         split_axes = [vecs[:, i] for i in np.argsort(w)[::-1]]  # slabs across each principal axis
+        # a slab's capsule depends on its axis and bounds alone: fitted once, however many
+        # cuts share it (3 or 4 slabs from the same 9 cuts share most of theirs)
+        slabs: dict[tuple[int, float, float], Capsule] = {}
         for k in range(2, max_capsules + 1):
             trial, trial_parts = None, None
-            for d in split_axes:
+            for a, d in enumerate(split_axes):
                 t = points @ d
                 grid = np.quantile(t, np.linspace(0.1, 0.9, 17 if k == 2 else 9))
                 for cuts in itertools.combinations(grid, k - 1):
@@ -196,7 +199,12 @@ def fit_capsules(points: np.ndarray, max_capsules: int = MAX_CAPSULES) -> list[C
                     parts = [points[(t >= lo) & (t <= hi)] for lo, hi in itertools.pairwise(edges)]
                     if any(len(p) < 4 for p in parts):
                         continue
-                    caps = [fit_one(p, refine=False) for p in parts]
+                    caps = []
+                    for (lo, hi), p in zip(itertools.pairwise(edges), parts, strict=True):
+                        key = (a, float(lo), float(hi))
+                        if key not in slabs:
+                            slabs[key] = fit_one(p, refine=False)
+                        caps.append(slabs[key])
                     if trial is None or sum(c.volume for c in caps) < sum(c.volume for c in trial):
                         trial, trial_parts = caps, parts
             if trial is None or sum(c.volume for c in trial) > (1 - GAIN) * sum(c.volume for c in best):
