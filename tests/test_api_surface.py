@@ -147,3 +147,13 @@ def test_a_layout_of_ones_own_is_public(m, setting):
         ((task.scenario, "0", layout.poses), "seed is a whole number"),
     ):
         _one_line(lambda a=args: lmjx.Layout(*a), match)
+    world = lmjx.SimulatedRealWorld(m.robot, seed=0)
+    for args, match in (
+        ((task, q_park), "layout: give an lmjx.Layout"),
+        ((layout.poses, q_park), "layout: give an lmjx.Layout"),
+        ((layout, q_park[:3]), f"robot_q: give the arm's {m.robot.nq} joint angles"),
+        ((layout, "park"), "robot_q: give the arm's"),
+        ((layout, {"q": 1}), "robot_q: give the arm's"),
+        ((layout, np.full(m.robot.nq, np.nan)), "robot_q: give the arm's"),
+    ):
+        _one_line(lambda a=args: world.reset(*a), match)

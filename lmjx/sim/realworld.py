@@ -107,6 +107,22 @@ class SimulatedRealWorld:
         self.on_step: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None  # e.g. a recorder
 
     def reset(self, layout: Layout, robot_q: np.ndarray) -> Observation:
+        """The world set up as `layout` places its objects, the arm at joint angles `robot_q`
+        (nq,), settled for 0.2 s: its first observation.  Anything else is a one-line
+        ConfigError."""
+        from lmjx.errors import ConfigError
+
+        if not isinstance(layout, Layout):
+            raise ConfigError(f"layout: give an lmjx.Layout (a scenario and its objects' poses), got "
+                              f"{type(layout).__name__}")  # fmt: skip
+        try:
+            q = np.asarray(robot_q, dtype=np.float64) if not isinstance(robot_q, str) else np.array([])
+        except (TypeError, ValueError):
+            q = np.array([])
+        if q.shape != (self.robot.nq,) or not np.all(np.isfinite(q)):
+            raise ConfigError(f"robot_q: give the arm's {self.robot.nq} joint angles [rad], finite numbers, "
+                              f"got {np.shape(robot_q)}")  # fmt: skip
+        robot_q = q
         n = len(layout.scenario.movable)
         self.scene = build_scene(self.robot, layout.scenario, real_physics(self.robot, n, self.rng))
         self.data = mujoco.MjData(self.scene.model)
