@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 from lmjx.errors import SceneError
-from lmjx.sim.footprint import circle_inside, footprints_overlap
+from lmjx.sim.footprint import circle_inside, footprints_overlap, rect_corners, rect_distance, rect_rect
 from lmjx.sim.scenarios import Box, Task
 
 if TYPE_CHECKING:
@@ -39,29 +39,6 @@ MIN_APART = 10  # of which at least this many must be apart (5 %: 200 tries fail
 BASE_HEIGHT = 0.05  # [m] a fixed obstacle whose underside is lower than this over the base's origin blocks it
 GOAL_POINTS = 41  # points along each side of the goal region where the target's centre is tried
 EDGE_TOL = 1e-9  # [m] a footprint flush with the table's edge is on the table
-
-
-def _polygons(half: np.ndarray, poses: np.ndarray, grow: float) -> np.ndarray:
-    """Footprint corners (..., 4, 2) of boxes of half extents (..., 3) at poses (..., 3)."""
-    hx, hy = half[..., 0] + grow, half[..., 1] + grow
-    local = np.stack([np.stack([hx, hy], -1), np.stack([-hx, hy], -1), np.stack([-hx, -hy], -1),
-                      np.stack([hx, -hy], -1)], -2)  # fmt: skip
-    c, s = np.cos(poses[..., 2])[..., None], np.sin(poses[..., 2])[..., None]
-    x = local[..., 0] * c - local[..., 1] * s
-    y = local[..., 0] * s + local[..., 1] * c
-    return np.stack([x + poses[..., None, 0], y + poses[..., None, 1]], -1)
-
-
-def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether convex quadrilaterals a, b (..., 4, 2) overlap (separating axes), (...,)."""
-    separated = np.zeros(a.shape[:-2], bool)
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[..., (i + 1) % 4, :] - poly[..., i, :]
-            axis = np.stack([-edge[..., 1], edge[..., 0]], -1)[..., None, :]
-            pa, pb = (a * axis).sum(-1), (b * axis).sum(-1)
-            separated |= (pa.max(-1) < pb.min(-1)) | (pb.max(-1) < pa.min(-1))
-    return ~separated
 
 
 def _inside(poly: np.ndarray, point: np.ndarray) -> bool:
@@ -79,22 +56,22 @@ def _pairs_overlapping(movable: tuple[Box, ...], poses: np.ndarray, fixed: tuple
     higher than twice a box's half height, the tunnel's roof, is above it; boxes as
     rectangles, cylinders as circles: `lmjx.sim.footprint`)."""
     half = np.array([b.half for b in movable])
-    polys = _polygons(half[None], poses, GAP / 2)  # (D, n, 4, 2)
+    polys = rect_corners(half[None], poses, GAP / 2)  # (D, n, 4, 2)
     out = []
     for i in range(len(movable)):
         for j in range(i + 1, len(movable)):
             if movable[i].shape == movable[j].shape == "box":
-                out.append(_overlap(polys[:, i], polys[:, j]))
+                out.append(rect_rect(polys[:, i], polys[:, j]))
             else:
                 out.append(footprints_overlap(movable[i], poses[:, i], movable[j], poses[:, j], GAP / 2))
     for f in fixed:
         pose = np.array([f.x, f.y, f.yaw])
-        fp = _polygons(np.array(f.half), pose, GAP / 2)
+        fp = rect_corners(np.array(f.half), pose, GAP / 2)
         for i, b in enumerate(movable):
             if f.zc - f.half[2] > b.half[2] * 2:
                 out.append(np.zeros(len(poses), bool))
             elif b.shape == f.shape == "box":
-                out.append(_overlap(polys[:, i], np.broadcast_to(fp, polys[:, i].shape)))
+                out.append(rect_rect(polys[:, i], np.broadcast_to(fp, polys[:, i].shape)))
             else:
                 out.append(footprints_overlap(b, poses[:, i], f, np.broadcast_to(pose, poses[:, i].shape), GAP / 2))
     return np.stack(out, 1) if out else np.zeros((len(poses), 0), bool)
@@ -175,7 +152,7 @@ def _extent(b: Box, jitter: float) -> np.ndarray:
     moved by up to `jitter` in x and y (and turned, by any yaw): a box's corners grown by
     jitter x sqrt(2) (at its nominal yaw), a cylinder's circle's extreme points, exactly."""
     if b.shape == "box":
-        return _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), jitter * math.sqrt(2))
+        return rect_corners(np.array(b.half), np.array([b.x, b.y, b.yaw]), jitter * math.sqrt(2))
     r = b.half[0] + jitter
     return np.array([[b.x - r, b.y - r], [b.x + r, b.y + r]])
 
@@ -202,11 +179,7 @@ def goal_cover(task: Task) -> tuple[Box, ...]:
         if f.shape != "box":  # a cylinder: the distance to its circle
             taken[k] = np.hypot(pts[:, 0] - f.x, pts[:, 1] - f.y) - f.half[0] < reach
             continue
-        c, s = math.cos(f.yaw), math.sin(f.yaw)
-        d = pts - [f.x, f.y]
-        local = np.stack([d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c], axis=1)
-        out = np.maximum(np.abs(local) - np.array(f.half[:2]), 0.0)
-        taken[k] = np.hypot(out[:, 0], out[:, 1]) < reach
+        taken[k] = rect_distance(pts, np.array(f.half), np.array([f.x, f.y, f.yaw])) < reach
     if not taken.any(axis=0).all():
         return ()
     order = np.argsort(-taken.sum(axis=1), kind="stable")
@@ -236,7 +209,7 @@ def _check_base(task: Task, robot: Robot, where: str) -> None:
         through = any(mujoco.mj_geomDistance(m, d, g, int(k), 0.01, None) < 0 for k in base)
         if not through and b.zc - b.half[2] < BASE_HEIGHT:  # reaching down to the table over the base's origin
             if b.shape == "box":
-                poly = _polygons(np.array(b.half), np.array([b.x, b.y, b.yaw]), 0.0)
+                poly = rect_corners(np.array(b.half), np.array([b.x, b.y, b.yaw]), 0.0)
                 through = any(_inside(poly, o[:2]) for o in origins)
             else:
                 through = any(circle_inside(o[:2], (b.x, b.y), b.half[0]) for o in origins)
