@@ -274,6 +274,10 @@ def report_markdown(
     per_cell = "0" if not counts else str(counts[0]) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}"
     planned = _planned(runs, config)
     names = scene_names(records)
+    scenes_said = []
+    if names:
+        each = (f"scenario {n} is {name}" + (f" ({file})" if file else "") for n, (name, file) in sorted(names.items()))
+        scenes_said = [f"Scenes (from scene files; each trial's record keeps the file's text): {'; '.join(each)}.", ""]
     tasks = ", ".join(sorted({str(r.get("tasks", config.tasks)) for r in records})) or config.tasks
     sims = sorted({r["simulator"]["description"] for r in runs if r["simulator"]["name"] != "none"})
     planner = runs[0]["planner"] if runs else {k: v for k, v in config.planner.__dict__.items() if k != "asm"}
@@ -295,8 +299,7 @@ def report_markdown(
         "are charged to each trial in proportion to its candidates (its planning time).  Success: successes of "
         "trials, the rate and its Wilson 95 % interval.",
         "",
-        *(["Scenes (from scene files; each trial's record keeps the file's text): "
-           + "; ".join(f"scenario {n} is {v}" for n, v in sorted(names.items())) + ".", ""] if names else []),
+        *scenes_said,
         "| failure | scenario | ASM | success | actions (mean, successes) | planning s | execution s | task s |",
         "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
@@ -331,22 +334,21 @@ def report_markdown(
     return "\n".join(lines)
 
 
-def scene_names(records: list[dict]) -> dict[int, str]:
+def scene_names(records: list[dict]) -> dict[int, tuple[str, str | None]]:
     """The scenarios that came from scene files (`lmjx evaluate --scenes`), by number: the
-    scene's name and, where the record keeps it, its file ("my bench (examples/my_bench.toml)").
-    Shipped scenarios are left out: their numbers name them."""
-    out: dict[int, str] = {}
+    scene's name and its file where the record keeps it.  Shipped scenarios are left out:
+    their numbers name them."""
+    out: dict[int, tuple[str, str | None]] = {}
     for r in records:
         sc = r.get("scene")
         if isinstance(sc, dict) and sc.get("kind") == "scene":
-            where = f" ({sc['file']})" if sc.get("file") else ""
-            out.setdefault(int(r["scenario"]), str(sc.get("name") or "scene") + where)
+            out.setdefault(int(r["scenario"]), (str(sc.get("name") or "scene"), sc.get("file") or None))
     return out
 
 
-def scenario_label(scenario: int, names: dict[int, str]) -> str:
+def scenario_label(scenario: int, names: dict[int, tuple[str, str | None]]) -> str:
     """A scenario as tables name it: its number, with its scene's name where it has one."""
-    return f"{scenario} ({names[scenario].split(' (')[0]})" if scenario in names else str(scenario)
+    return f"{scenario} ({names[scenario][0]})" if scenario in names else str(scenario)
 
 
 def _trials(n: int) -> str:
