@@ -247,19 +247,6 @@ def ik_batch(robot, failure, settings=None, chunk: int | None = None):
     return IKBatch(robot, failure, sites, settings or config.ik_settings(), chunk or default_chunk())
 
 
-@contextlib.contextmanager
-def _file_lock(path: Path) -> Iterator[None]:
-    """Within: this process alone holds the lock file `path` (POSIX flock)."""
-    import fcntl
-
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
-
-
 def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, file: str, build: Callable[[Path], None]) -> Path:
     """The file `file` that `build(path)` makes, made once for the whole run: under pytest-xdist
     the first worker to ask builds it in a folder the run's workers share (the run's base
@@ -271,7 +258,9 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, file: str, b
         return path
     folder = tmp_path_factory.getbasetemp().parent / "shared" / name
     folder.mkdir(parents=True, exist_ok=True)
-    with _file_lock(folder.parent / f"{name}.lock"):
+    from lmjx.runtime.compilelock import held
+
+    with held(folder.parent / f"{name}.lock"):
         if not (folder / ".built").exists():
             build(folder / file)
             (folder / ".built").touch()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
+from pathlib import Path
 
 try:
     import fcntl
@@ -29,12 +30,25 @@ def compiling(ident: str) -> Iterator[None]:
     from lmjx.runtime.cache import cache_dir
 
     folder = cache_dir()
-    if folder is None or fcntl is None:
+    if folder is None:
+        yield
+        return
+    with contextlib.suppress(OSError):  # (mkdir: a folder this process cannot write: no lock)
+        (folder / "locks").mkdir(parents=True, exist_ok=True)
+    with held(folder / "locks" / f"{ident[:32]}.lock"):
+        yield
+
+
+@contextlib.contextmanager
+def held(path: Path) -> Iterator[None]:
+    """Within: this process alone holds the lock file `path` (an exclusive POSIX lock, let go
+    when the process ends however it ends); where the file cannot be made or locked, or the
+    system has no such locks, nothing is held."""
+    if fcntl is None:
         yield
         return
     try:
-        (folder / "locks").mkdir(parents=True, exist_ok=True)
-        fd = os.open(folder / "locks" / f"{ident[:32]}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError:  # a folder this process cannot write: no lock
         yield
         return
